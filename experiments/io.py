@@ -1,0 +1,104 @@
+"""Atomic output helpers and plain-text tables shared by the experiments."""
+from __future__ import annotations
+
+import contextlib
+import json
+import math
+import os
+import platform
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+
+def _default(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if hasattr(o, "tolist"):
+        return o.tolist()
+    raise TypeError(f"not JSON serializable: {type(o)}")
+
+
+@contextlib.contextmanager
+def atomic_path(path):
+    """Yield a temporary path next to ``path``; move it into place only if the block succeeds."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix or ".tmp", dir=path.parent)
+    os.close(fd)
+    try:
+        yield Path(tmp)
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def write_text(path, text: str) -> None:
+    """Write text atomically."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(text)
+
+
+def write_json(path, data) -> None:
+    """Write JSON atomically (numpy scalars/arrays converted)."""
+    write_text(path, json.dumps(data, indent=2, default=_default) + "\n")
+
+
+def save_figure(fig, path, dpi: int = 130) -> None:
+    """Save a matplotlib figure atomically and close it."""
+    import matplotlib.pyplot as plt
+
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=dpi, format=Path(path).suffix.lstrip(".") or "png", bbox_inches="tight")
+    plt.close(fig)
+
+
+def provenance(params: dict | None = None, started: float | None = None) -> dict:
+    """Package version, platform, parameters and wall time of a run (recorded in every output)."""
+    import jax
+
+    from jaxflex import __version__
+
+    out = {"jaxflex_version": __version__, "jax_version": jax.__version__,
+           "python": platform.python_version(), "machine": platform.machine(),
+           "created": time.strftime("%Y-%m-%dT%H:%M:%S%z")}
+    if params is not None:
+        out["parameters"] = params
+    if started is not None:
+        out["wall_time_s"] = round(time.time() - started, 3)
+    return out
+
+
+def rel_diff(ours, paper):
+    """Relative difference (ours - paper) / |paper|, NaN when the paper value is missing or zero."""
+    if paper is None or ours is None or paper == 0 or not math.isfinite(paper):
+        return float("nan")
+    return (ours - paper) / abs(paper)
+
+
+def fmt(v, sig: int = 5):
+    """Number formatting for tables: ``sig`` significant digits, '-' for missing/NaN."""
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "-"
+    if isinstance(v, str):
+        return v
+    return f"{v:.{sig}g}"
+
+
+def pct(v):
+    """Percentage formatting of a relative difference."""
+    return "-" if v is None or not math.isfinite(v) else f"{100 * v:+.2f}%"
+
+
+def table(headers, rows) -> str:
+    """A GitHub-flavoured markdown table (also readable in a terminal)."""
+    cells = [[str(h) for h in headers]] + [[str(c) for c in r] for r in rows]
+    widths = [max(len(r[i]) for r in cells) for i in range(len(headers))]
+    line = lambda r: "| " + " | ".join(c.ljust(w) for c, w in zip(r, widths)) + " |"
+    sep = "|" + "|".join("-" * (w + 2) for w in widths) + "|"
+    return "\n".join([line(cells[0]), sep] + [line(r) for r in cells[1:]])

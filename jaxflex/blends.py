@@ -1,0 +1,325 @@
+"""Corner blends of the Adept cycle (paper Section 3, Figs. 5-6; SPEC 2), parametrized by arc length.
+
+Every blend lives in its own *blend frame*: it starts at the origin on the vertical leg with unit
+tangent (0, 1), the sharp corner it replaces is at (0, d), and it ends at (e, d) on the horizontal leg
+with unit tangent (1, 0) (a right turn). ``d`` is the part of the vertical leg and ``e`` the part of
+the horizontal leg that the blend consumes. Three families:
+
+- ``lame``: Lamé curve (superellipse) of order n, x = e (1 - cos(t)^(2/n)), y = d sin(t)^(2/n),
+  t in [0, pi/2]. That parametrization has singular derivatives at both ends, so we evaluate it as
+  two graphs joined at t = pi/4 (x as a function of y near the start, y as a function of x near the
+  end); both are smooth, so arc length, curvature and all gradients stay finite.
+- ``clothoid``: a G2 pair of clothoids (curvature linear in arc length, zero at both ends, common
+  curvature at the join), turning theta1 + theta2 = pi/2; symmetric (theta1 = pi/4) for d = e.
+- ``polar``: polar polynomial r(phi) about the intersection of the leg normals at the tangent
+  points, with r, r' = 0 and r'' = r (zero curvature) matched at both ends. For d = e this is the
+  quartic of SPEC 2 (a0 + b phi^2 + c phi^4, R = d); for d != e the unique quintic.
+
+Arc length is computed with composite Gauss-Legendre quadrature (exact to round-off for these smooth
+integrands) and inverted with a few Newton steps, so ``blend_frame`` returns position and the first
+three derivatives with respect to arc length. Everything is differentiable w.r.t. d, e and n.
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxflex.quadrature import gauss_legendre, integrate
+
+BLENDS = ("lame", "clothoid", "polar")
+
+_PANELS = 32          # composite quadrature panels over the blend parameter
+_GL_PANEL = 8         # Gauss-Legendre points per panel
+_NEWTON = 4           # Newton steps for the arc-length inversion (quadratic convergence)
+_GL_FRESNEL = 20      # Gauss-Legendre points for the clothoid (Fresnel) integrals
+_PHI0 = np.pi / 4     # polar half-angle (half of the 90 degree turn)
+
+
+class Frame(NamedTuple):
+    """Position and arc-length derivatives of a planar curve at one point (each shape (..., 2)).
+
+    ``pos`` [m]; ``tangent`` = dP/ds (unit); ``curv`` = d2P/ds2 (curvature vector, 1/m);
+    ``dcurv`` = d3P/ds3 (1/m^2).
+    """
+
+    pos: jax.Array
+    tangent: jax.Array
+    curv: jax.Array
+    dcurv: jax.Array
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Blend:
+    """A corner blend with its arc-length table.
+
+    Attributes:
+        kind: one of ``BLENDS`` (static).
+        d, e: lengths consumed on the vertical and horizontal legs [m].
+        n: Lamé order (ignored by the other families).
+        length: arc length of the blend [m].
+        knots: (K+1,) parameter values of the quadrature panels (blend parameter in [0, 1]).
+        cum: (K+1,) arc length at the knots [m].
+        coef: family constants: clothoid (theta1, theta2, kappa_max, L1, L2, 0); polar: the six
+            coefficients of r(phi) in ascending powers; Lamé: unused zeros.
+    """
+
+    d: jax.Array
+    e: jax.Array
+    n: jax.Array
+    length: jax.Array
+    knots: jax.Array
+    cum: jax.Array
+    coef: jax.Array
+    kind: str = dataclasses.field(metadata=dict(static=True), default="lame")
+
+
+# ----------------------------------------------------------------------------------------------
+# helpers
+
+
+def _safe_pow(x, p):
+    """x**p for x >= 0 with finite values and gradients at x = 0 (0**0 = 1)."""
+    pos = x > 0
+    xs = jnp.where(pos, x, 1.0)
+    return jnp.where(pos, jnp.exp(p * jnp.log(xs)), jnp.where(p == 0, 1.0, 0.0))
+
+
+def _pow_n(v, n):
+    """v**n for v in [0, 1], n >= 2, written v^2 * v^(n-2) so that the first two derivatives at v = 0
+    are exact (the second is 2 for n = 2 and 0 for n > 2)."""
+    return v * v * _safe_pow(v, n - 2.0)
+
+
+def _d_dp(f):
+    """Derivative of a function of a scalar parameter (forward mode)."""
+    return lambda p: jax.jvp(f, (p,), (jnp.ones_like(p),))[1]
+
+
+# ----------------------------------------------------------------------------------------------
+# family point maps P(p), p in [0, 1]
+
+
+def _lame_point(d, e, n, p):
+    vstar = 2.0 ** (-1.0 / n)
+    v = 2.0 * jnp.minimum(p, 0.5) * vstar           # first half: graph x(y), y = d v
+    u = 2.0 * (1.0 - jnp.maximum(p, 0.5)) * vstar   # second half: graph y(x), x = e (1 - u)
+    x1 = e * (1.0 - (1.0 - _pow_n(v, n)) ** (1.0 / n))
+    y1 = d * v
+    x2 = e * (1.0 - u)
+    y2 = d * (1.0 - _pow_n(u, n)) ** (1.0 / n)
+    first = p <= 0.5
+    return jnp.stack([jnp.where(first, x1, x2), jnp.where(first, y1, y2)], axis=-1)
+
+
+def _polar_coef(d, e):
+    """Coefficients c0..c5 of r(phi) with r(-phi0) = e, r(phi0) = d, r' = 0 and r'' = r at both ends."""
+    f = _PHI0
+    powers = np.arange(6)
+
+    def rows(phi):
+        r0 = phi ** powers
+        r1 = np.where(powers >= 1, powers * phi ** np.maximum(powers - 1, 0), 0.0)
+        r2 = np.where(powers >= 2, powers * (powers - 1) * phi ** np.maximum(powers - 2, 0), 0.0)
+        return r0, r1, r2
+
+    a0, a1, a2 = rows(-f)
+    b0, b1, b2 = rows(f)
+    mat = jnp.asarray(np.stack([a0, b0, a1, b1, a2, b2]))
+    zero = jnp.zeros_like(d)
+    rhs = jnp.stack([e, d, zero, zero, e, d])
+    return jnp.linalg.solve(mat, rhs)
+
+
+def _polar_point(coef, e, p):
+    phi = _PHI0 * (2.0 * p - 1.0)
+    r = jnp.polyval(coef[::-1], phi)
+    psi = 0.75 * np.pi - phi
+    return jnp.stack([e + r * jnp.cos(psi), r * jnp.sin(psi)], axis=-1)
+
+
+def _point_fn(kind, blend_or_params):
+    d, e, n, coef = blend_or_params
+    if kind == "lame":
+        return lambda p: _lame_point(d, e, n, p)
+    if kind == "polar":
+        return lambda p: _polar_point(coef, e, p)
+    raise ValueError(kind)
+
+
+def _speed_fn(point):
+    dpoint = _d_dp(point)
+    return lambda p: jnp.linalg.norm(dpoint(p), axis=-1)
+
+
+# ----------------------------------------------------------------------------------------------
+# clothoid pair
+
+
+def _fresnel_cs(theta):
+    """C(theta) = int_0^1 cos(theta w^2) dw and S(theta) = int_0^1 sin(theta w^2) dw."""
+    c = integrate(lambda w: jnp.cos(theta * w * w), 0.0, 1.0, _GL_FRESNEL)
+    s = integrate(lambda w: jnp.sin(theta * w * w), 0.0, 1.0, _GL_FRESNEL)
+    return c, s
+
+
+def _clothoid_residual(theta1, d, e):
+    """Zero when a G2 clothoid pair turning theta1 then pi/2 - theta1 ends at (e, d) from (0, 0)."""
+    theta2 = 0.5 * np.pi - theta1
+    c1, s1 = _fresnel_cs(theta1)
+    c2, s2 = _fresnel_cs(theta2)
+    return d * (theta1 * s1 + theta2 * c2) - e * (theta1 * c1 + theta2 * s2)
+
+
+def _clothoid_coef(d, e):
+    """Solve the G2 clothoid pair: (theta1, theta2, kappa_max, L1, L2, 0).
+
+    Bisection (no gradient) brackets the root; two Newton steps on top make the result exactly
+    differentiable w.r.t. d and e (implicit function theorem at the root).
+    """
+    dd, ee = jax.lax.stop_gradient(d), jax.lax.stop_gradient(e)
+
+    def bisect(_, lohi):
+        lo, hi = lohi
+        mid = 0.5 * (lo + hi)
+        go_right = _clothoid_residual(mid, dd, ee) > 0.0   # residual decreases with theta1
+        return jnp.where(go_right, mid, lo), jnp.where(go_right, hi, mid)
+
+    zero = jnp.zeros_like(dd)
+    lo, hi = jax.lax.fori_loop(0, 60, bisect, (zero, zero + 0.5 * np.pi))
+    theta1 = jax.lax.stop_gradient(0.5 * (lo + hi))
+    for _ in range(2):
+        r = _clothoid_residual(theta1, d, e)
+        dr = jax.grad(_clothoid_residual)(theta1, d, e)
+        theta1 = theta1 - r / dr
+    theta2 = 0.5 * np.pi - theta1
+    c1, _ = _fresnel_cs(theta1)
+    _, s2 = _fresnel_cs(theta2)
+    kappa = 2.0 * (theta1 * c1 + theta2 * s2) / d
+    return jnp.stack([theta1, theta2, kappa, 2.0 * theta1 / kappa, 2.0 * theta2 / kappa, zero])
+
+
+def _clothoid_frame(coef, d, e, sigma):
+    theta1, theta2, _, l1, l2, _ = (coef[i] for i in range(6))
+    total = l1 + l2
+    first = sigma <= l1
+    s1 = jnp.clip(sigma, 0.0, l1)
+    w2 = jnp.clip(total - sigma, 0.0, l2)
+    # heading psi measured from +y towards +x; tangent = (sin psi, cos psi)
+    psi1 = theta1 * (s1 / l1) ** 2
+    dpsi1 = 2.0 * theta1 * s1 / l1**2
+    ddpsi1 = 2.0 * theta1 / l1**2
+    psi2 = 0.5 * np.pi - theta2 * (w2 / l2) ** 2
+    dpsi2 = 2.0 * theta2 * w2 / l2**2
+    ddpsi2 = -2.0 * theta2 / l2**2
+    # positions: forward integral on the first clothoid, backward from (e, d) on the second
+    a1 = theta1 * (s1 / l1) ** 2
+    a2 = theta2 * (w2 / l2) ** 2
+    c1, sn1 = _fresnel_cs(a1)
+    c2, sn2 = _fresnel_cs(a2)
+    pos1 = s1 * jnp.stack([sn1, c1], axis=-1)
+    pos2 = jnp.stack([e - w2 * c2, d - w2 * sn2], axis=-1)
+    psi = jnp.where(first, psi1, psi2)
+    dpsi = jnp.where(first, dpsi1, dpsi2)
+    ddpsi = jnp.where(first, ddpsi1, ddpsi2)
+    pos = jnp.where(first[..., None], pos1, pos2)
+    tangent = jnp.stack([jnp.sin(psi), jnp.cos(psi)], axis=-1)
+    normal = jnp.stack([jnp.cos(psi), -jnp.sin(psi)], axis=-1)
+    curv = dpsi[..., None] * normal
+    dcurv = ddpsi[..., None] * normal - (dpsi**2)[..., None] * tangent
+    return Frame(pos, tangent, curv, dcurv)
+
+
+# ----------------------------------------------------------------------------------------------
+# construction and evaluation
+
+
+def check_blend_args(kind: str, d, e, n) -> None:
+    """Eager validation of blend arguments (skipped for traced values)."""
+    if kind not in BLENDS:
+        raise ValueError(f"unknown blend {kind!r}; choose one of {', '.join(BLENDS)}")
+    for name, val in (("d", d), ("e", e), ("n", n)):
+        if isinstance(val, jax.core.Tracer):
+            continue
+        v = np.asarray(val, dtype=float)
+        if not np.all(np.isfinite(v)):
+            raise ValueError(f"blend parameter {name} must be finite, got {val}")
+    concrete = lambda x: not isinstance(x, jax.core.Tracer)
+    if concrete(d) and np.any(np.asarray(d) <= 0):
+        raise ValueError(f"blend parameter d must be > 0 m, got {d}")
+    if concrete(e) and np.any(np.asarray(e) <= 0):
+        raise ValueError(f"blend parameter e must be > 0 m, got {e}")
+    if kind == "lame" and concrete(n) and np.any(np.asarray(n) < 2):
+        raise ValueError(f"Lamé order n must be >= 2, got {n}")
+    if kind == "clothoid" and concrete(d) and concrete(e):
+        ratio = float(np.asarray(d) / np.asarray(e))
+        lo, hi = 0.43826 / 0.77989, 0.77989 / 0.43826   # S(pi/2)/C(pi/2) and inverse (Fresnel at 1)
+        if not lo < ratio < hi:
+            raise ValueError(
+                f"no G2 clothoid pair with d/e = {ratio:.3f}: it must lie in ({lo:.3f}, {hi:.3f})")
+
+
+def make_blend(kind: str, d, e, n=3.0) -> Blend:
+    """Build a blend and its arc-length table.
+
+    Args:
+        kind: ``"lame"``, ``"clothoid"`` or ``"polar"``.
+        d: length consumed on the vertical leg [m] (> 0).
+        e: length consumed on the horizontal leg [m] (> 0).
+        n: Lamé order (>= 2), ignored by the other families.
+    """
+    check_blend_args(kind, d, e, n)
+    d = jnp.asarray(d, dtype=float)
+    e = jnp.asarray(e, dtype=float)
+    n = jnp.asarray(n, dtype=float)
+    knots = jnp.linspace(0.0, 1.0, _PANELS + 1)
+    if kind == "clothoid":
+        coef = _clothoid_coef(d, e)
+        length = coef[3] + coef[4]
+        cum = knots * length
+    else:
+        coef = _polar_coef(d, e) if kind == "polar" else jnp.zeros(6)
+        speed = _speed_fn(_point_fn(kind, (d, e, n, coef)))
+        panel = jax.vmap(lambda a, b: integrate(speed, a, b, _GL_PANEL))(knots[:-1], knots[1:])
+        cum = jnp.concatenate([jnp.zeros(1), jnp.cumsum(panel)])
+        length = cum[-1]
+    return Blend(d=d, e=e, n=n, length=length, knots=knots, cum=cum, coef=coef, kind=kind)
+
+
+def _param_at(blend: Blend, point, sigma):
+    """Blend parameter p at arc length sigma (scalar), by panel lookup then Newton."""
+    speed = _speed_fn(point)
+    k = jnp.clip(jnp.searchsorted(blend.cum, sigma, side="right") - 1, 0, _PANELS - 1)
+    p0, p1 = blend.knots[k], blend.knots[k + 1]
+    s0, s1 = blend.cum[k], blend.cum[k + 1]
+    p = p0 + (sigma - s0) / (s1 - s0) * (p1 - p0)
+    for _ in range(_NEWTON):
+        resid = s0 + integrate(speed, p0, p, _GL_PANEL) - sigma
+        p = jnp.clip(p - resid / speed(p), p0, p1)
+    return p
+
+
+def blend_frame(blend: Blend, sigma) -> Frame:
+    """Position and arc-length derivatives at arc length ``sigma`` in [0, length] (scalar, blend frame)."""
+    sigma = jnp.clip(sigma, 0.0, blend.length)
+    if blend.kind == "clothoid":
+        return _clothoid_frame(blend.coef, blend.d, blend.e, sigma)
+    point = _point_fn(blend.kind, (blend.d, blend.e, blend.n, blend.coef))
+    p = _param_at(blend, point, sigma)
+    dpoint = _d_dp(point)
+
+    def tangent(q):
+        v = dpoint(q)
+        return v / jnp.linalg.norm(v)
+
+    def curv(q):
+        return _d_dp(tangent)(q) / jnp.linalg.norm(dpoint(q))
+
+    def dcurv(q):
+        return _d_dp(curv)(q) / jnp.linalg.norm(dpoint(q))
+
+    return Frame(point(p), tangent(p), curv(p), dcurv(p))

@@ -1,0 +1,155 @@
+"""Motion laws S(eta), eta = t / tf in [0, 1] (paper Section 3, Fig. 7; SPEC 2).
+
+A motion law is monotone from S(0) = 0 to S(1) = 1 and gives the fraction of the path covered at the
+normalized time eta. Families:
+
+- ``poly7``: 35 eta^4 - 84 eta^5 + 70 eta^6 - 20 eta^7 (zero velocity, acceleration and jerk at both
+  ends).
+- ``trapezoid``: trapezoidal velocity with acceleration time ``ta`` (fraction of tf, 0 < ta <= 1/2) and
+  cruise speed 1 / (1 - ta). ``bang_bang`` is ta = 1/2 (2 eta^2, then 1 - 2 (1 - eta)^2),
+  ``trap_1_4`` is ta = 1/4 and ``trap_1_8`` ta = 1/8.
+- ``shaped`` (the parametric family for optimization): velocity
+  S'(eta) = eta^r (1 - eta)^r g(eta)^2 / Z, g a Bernstein polynomial with free coefficients ``coef``
+  and Z the normalization making S(1) = 1. Monotone, with S(0) = 0, S(1) = 1 and zero velocity and
+  acceleration at both ends (also zero jerk for r = 3) for ANY coefficients, so optimization needs no
+  constraints for these properties. With r = 3 and equal coefficients it is exactly ``poly7``.
+
+Derivatives are with respect to eta; ``time_scaled`` converts them to time for a given tf.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxflex.quadrature import gauss_legendre
+
+PROFILES = ("poly7", "bang_bang", "trap_1_4", "trap_1_8")
+_TRAP_FRACTION = {"bang_bang": 0.5, "trap_1_4": 0.25, "trap_1_8": 0.125}
+
+
+class LawValues(NamedTuple):
+    """S and its first three derivatives (w.r.t. eta, or w.r.t. time after ``time_scaled``)."""
+
+    s: jax.Array
+    ds: jax.Array
+    dds: jax.Array
+    ddds: jax.Array
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class Profile:
+    """A motion law.
+
+    Attributes:
+        kind: ``"poly7"``, ``"trapezoid"`` or ``"shaped"`` (static).
+        ta: acceleration time as a fraction of tf (trapezoid only).
+        coef: Bernstein coefficients of g (shaped only; shape (m + 1,)).
+        order: exponent r of the end factor eta^r (1 - eta)^r (shaped only; static, 2 or 3).
+        name: display name (static).
+    """
+
+    ta: jax.Array
+    coef: jax.Array
+    kind: str = dataclasses.field(metadata=dict(static=True), default="poly7")
+    order: int = dataclasses.field(metadata=dict(static=True), default=3)
+    name: str = dataclasses.field(metadata=dict(static=True), default="poly7")
+
+
+def make_profile(name: str) -> Profile:
+    """One of the paper's motion laws by name: ``poly7``, ``bang_bang``, ``trap_1_4``, ``trap_1_8``."""
+    if name == "poly7":
+        return Profile(ta=jnp.asarray(0.0), coef=jnp.zeros(1), kind="poly7", name=name)
+    if name in _TRAP_FRACTION:
+        return trapezoid(_TRAP_FRACTION[name], name=name)
+    raise ValueError(f"unknown motion profile {name!r}; choose one of {', '.join(PROFILES)} "
+                     "(or build one with trapezoid(ta) / shaped(coef))")
+
+
+def trapezoid(ta, name: str | None = None) -> Profile:
+    """Trapezoidal velocity law with acceleration time ``ta`` * tf, 0 < ta <= 1/2."""
+    if not isinstance(ta, jax.core.Tracer) and not 0.0 < float(ta) <= 0.5:
+        raise ValueError(f"trapezoid acceleration fraction ta must be in (0, 1/2], got {ta}")
+    return Profile(ta=jnp.asarray(ta, dtype=float), coef=jnp.zeros(1), kind="trapezoid",
+                   name=name or f"trap_{float(ta):g}")
+
+
+def shaped(coef, order: int = 3, name: str = "shaped") -> Profile:
+    """Parametric law S' = eta^r (1-eta)^r g(eta)^2 / Z with g = sum_k coef_k B_k(eta) (Bernstein)."""
+    coef = jnp.asarray(coef, dtype=float)
+    if coef.ndim != 1 or coef.shape[0] < 1:
+        raise ValueError("shaped profile coefficients must be a non-empty 1-D array")
+    if order not in (2, 3):
+        raise ValueError(f"shaped profile order must be 2 or 3, got {order}")
+    return Profile(ta=jnp.asarray(0.0), coef=coef, kind="shaped", order=order, name=name)
+
+
+# ----------------------------------------------------------------------------------------------
+
+
+def _poly7(eta):
+    e2 = eta * eta
+    e3 = e2 * eta
+    s = e2 * e2 * (35.0 - 84.0 * eta + 70.0 * e2 - 20.0 * e3)
+    ds = 140.0 * e3 * (1.0 - eta) ** 3
+    dds = 420.0 * e2 * (1.0 - eta) ** 2 * (1.0 - 2.0 * eta)
+    ddds = 840.0 * eta * (1.0 - eta) * (1.0 - 5.0 * eta + 5.0 * e2)
+    return LawValues(s, ds, dds, ddds)
+
+
+def _trapezoid(ta, eta):
+    v = 1.0 / (1.0 - ta)
+    a = v / ta
+    rise, fall = eta < ta, eta > 1.0 - ta
+    r = 1.0 - eta
+    s = jnp.where(rise, 0.5 * a * eta**2, jnp.where(fall, 1.0 - 0.5 * a * r**2, v * (eta - 0.5 * ta)))
+    ds = jnp.where(rise, a * eta, jnp.where(fall, a * r, v))
+    dds = jnp.where(rise, a, jnp.where(fall, -a, 0.0))
+    return LawValues(s, ds, dds, jnp.zeros_like(eta))
+
+
+def _bernstein(coef, x):
+    m = coef.shape[0] - 1
+    k = np.arange(m + 1)
+    binom = np.array([math.comb(m, i) for i in k], dtype=float)
+    basis = binom * x[..., None] ** k * (1.0 - x[..., None]) ** (m - k)
+    return basis @ coef
+
+
+def _shaped_velocity(coef, order, x):
+    g = _bernstein(coef, x)
+    return (x * (1.0 - x)) ** order * g * g
+
+
+def _shaped(coef, order, eta):
+    m = coef.shape[0] - 1
+    nodes, weights = gauss_legendre(order + m + 2)   # exact: velocity has degree 2 (r + m)
+    nodes, weights = jnp.asarray(nodes), jnp.asarray(weights)
+    z = weights @ _shaped_velocity(coef, order, nodes)
+    s = eta * (_shaped_velocity(coef, order, eta[..., None] * nodes) @ weights) / z
+    vel = lambda x: _shaped_velocity(coef, order, x) / z
+    d1 = lambda x: jax.jvp(vel, (x,), (jnp.ones_like(x),))[1]
+    d2 = lambda x: jax.jvp(d1, (x,), (jnp.ones_like(x),))[1]
+    return LawValues(s, vel(eta), d1(eta), d2(eta))
+
+
+def profile_eval(profile: Profile, eta) -> LawValues:
+    """S(eta) and its derivatives w.r.t. eta; eta is clipped to [0, 1] (any shape)."""
+    eta = jnp.clip(jnp.asarray(eta, dtype=float), 0.0, 1.0)
+    if profile.kind == "poly7":
+        return _poly7(eta)
+    if profile.kind == "trapezoid":
+        return _trapezoid(profile.ta, eta)
+    if profile.kind == "shaped":
+        return _shaped(profile.coef, profile.order, eta)
+    raise ValueError(f"unknown profile kind {profile.kind!r}")
+
+
+def time_scaled(values: LawValues, tf) -> LawValues:
+    """Convert derivatives w.r.t. eta into derivatives w.r.t. time for a motion of duration tf [s]."""
+    return LawValues(values.s, values.ds / tf, values.dds / tf**2, values.ddds / tf**3)
