@@ -273,9 +273,12 @@ def make_blend(kind: str, d, e, n=3.0) -> Blend:
         n: Lamé order (>= 2), ignored by the other families.
     """
     check_blend_args(kind, d, e, n)
-    d = jnp.asarray(d, dtype=float)
-    e = jnp.asarray(e, dtype=float)
-    n = jnp.asarray(n, dtype=float)
+    return _build(kind, jnp.asarray(d, dtype=float), jnp.asarray(e, dtype=float),
+                  jnp.asarray(n, dtype=float))
+
+
+@jax.jit(static_argnums=0)
+def _build(kind, d, e, n):
     knots = jnp.linspace(0.0, 1.0, _PANELS + 1)
     if kind == "clothoid":
         coef = _clothoid_coef(d, e)
@@ -291,16 +294,23 @@ def make_blend(kind: str, d, e, n=3.0) -> Blend:
 
 
 def _param_at(blend: Blend, point, sigma):
-    """Blend parameter p at arc length sigma (scalar), by panel lookup then Newton."""
+    """Blend parameter p at arc length sigma (scalar): panel lookup, Newton iterations without
+    gradient, then one differentiable Newton step at the root (implicit-function derivatives
+    dp/dsigma = 1/|P_p| and dp/dtheta = -dS/dtheta / |P_p| for the blend parameters theta)."""
     speed = _speed_fn(point)
     k = jnp.clip(jnp.searchsorted(blend.cum, sigma, side="right") - 1, 0, _PANELS - 1)
     p0, p1 = blend.knots[k], blend.knots[k + 1]
     s0, s1 = blend.cum[k], blend.cum[k + 1]
-    p = p0 + (sigma - s0) / (s1 - s0) * (p1 - p0)
-    for _ in range(_NEWTON):
-        resid = s0 + integrate(speed, p0, p, _GL_PANEL) - sigma
-        p = jnp.clip(p - resid / speed(p), p0, p1)
-    return p
+
+    def residual(p):
+        return s0 + integrate(speed, p0, p, _GL_PANEL) - sigma
+
+    def newton(_, p):
+        return jnp.clip(p - residual(p) / speed(p), p0, p1)
+
+    guess = p0 + (sigma - s0) / (s1 - s0) * (p1 - p0)
+    p = jax.lax.stop_gradient(jax.lax.fori_loop(0, _NEWTON, newton, jax.lax.stop_gradient(guess)))
+    return p - residual(p) / speed(p)
 
 
 def blend_frame(blend: Blend, sigma) -> Frame:
@@ -310,16 +320,17 @@ def blend_frame(blend: Blend, sigma) -> Frame:
         return _clothoid_frame(blend.coef, blend.d, blend.e, sigma)
     point = _point_fn(blend.kind, (blend.d, blend.e, blend.n, blend.coef))
     p = _param_at(blend, point, sigma)
-    dpoint = _d_dp(point)
-
-    def tangent(q):
-        v = dpoint(q)
-        return v / jnp.linalg.norm(v)
-
-    def curv(q):
-        return _d_dp(tangent)(q) / jnp.linalg.norm(dpoint(q))
-
-    def dcurv(q):
-        return _d_dp(curv)(q) / jnp.linalg.norm(dpoint(q))
-
-    return Frame(point(p), tangent(p), curv(p), dcurv(p))
+    d1 = _d_dp(point)
+    d2 = _d_dp(d1)
+    d3 = _d_dp(d2)
+    x1, x2, x3 = d1(p), d2(p), d3(p)
+    # Arc-length derivatives from the parameter derivatives x1, x2, x3 of P, with v = |x1|:
+    #   T = x1 / v,  K = (x2 - T v1) / v^2,  J = (x3 - v K v1 - T v2) / v^3 - 2 v1 K / v^2,
+    # where v1 = dv/dp = T.x2 and v2 = d2v/dp2 = v K.x2 + T.x3.
+    v = jnp.linalg.norm(x1)
+    t = x1 / v
+    v1 = t @ x2
+    k = (x2 - t * v1) / v**2
+    v2 = v * (k @ x2) + t @ x3
+    j = (x3 - v * k * v1 - t * v2) / v**3 - 2.0 * v1 * k / v**2
+    return Frame(point(p), t, k, j)

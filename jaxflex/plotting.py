@@ -40,8 +40,8 @@ def motion_laws(eta, laws: dict):
 def blends_overlay(curves: dict, corner=(0.0, 0.025)):
     """Fig. 6: blend curves (dict name -> (N, 2) points in the blend frame [m]) with the sharp corner."""
     fig, ax = plt.subplots(figsize=(5.5, 5))
-    cx, cy = corner
-    ax.plot([0, cx, cx + 0.03], [0, cy, cy], "k:", lw=1, label="Adept corner")
+    cx, cy = 1e3 * np.asarray(corner)
+    ax.plot([0, cx, cx + 30], [0, cy, cy], "k:", lw=1, label="Adept corner")
     for name, pts in curves.items():
         pts = np.asarray(pts) * 1e3
         ax.plot(pts[:, 0], pts[:, 1], color=BLEND_COLOR.get(name.split()[0]), label=name)

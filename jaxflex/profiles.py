@@ -114,10 +114,10 @@ def _trapezoid(ta, eta):
 
 
 def _bernstein(coef, x):
+    """sum_k coef_k C(m, k) x^k (1 - x)^(m - k) for x of any shape (integer powers: exact
+    derivatives at the ends)."""
     m = coef.shape[0] - 1
-    k = np.arange(m + 1)
-    binom = np.array([math.comb(m, i) for i in k], dtype=float)
-    basis = binom * x[..., None] ** k * (1.0 - x[..., None]) ** (m - k)
+    basis = jnp.stack([math.comb(m, k) * x**k * (1.0 - x) ** (m - k) for k in range(m + 1)], axis=-1)
     return basis @ coef
 
 
@@ -131,7 +131,8 @@ def _shaped(coef, order, eta):
     nodes, weights = gauss_legendre(order + m + 2)   # exact: velocity has degree 2 (r + m)
     nodes, weights = jnp.asarray(nodes), jnp.asarray(weights)
     z = weights @ _shaped_velocity(coef, order, nodes)
-    s = eta * (_shaped_velocity(coef, order, eta[..., None] * nodes) @ weights) / z
+    grid = eta[..., None] * nodes.reshape((1,) * eta.ndim + (-1,))
+    s = eta * (_shaped_velocity(coef, order, grid) @ weights) / z
     vel = lambda x: _shaped_velocity(coef, order, x) / z
     d1 = lambda x: jax.jvp(vel, (x,), (jnp.ones_like(x),))[1]
     d2 = lambda x: jax.jvp(d1, (x,), (jnp.ones_like(x),))[1]

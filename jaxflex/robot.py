@@ -125,7 +125,8 @@ def make_robot(a=0.10, modes=(1, -1), *, l1=0.24, l2=0.38079, diameter=0.035, rh
         check_reachable(robot, np.asarray(reference_point, dtype=float)[None], "reference point")
         q = np.asarray(igm(robot, jnp.asarray(reference_point, dtype=float)))
         elbows = np.asarray(robot.bases) + float(robot.l1) * np.stack([np.cos(q), np.sin(q)], -1)
-        cross = np.cross(elbows[1] - elbows[0], np.asarray(reference_point) - elbows[0])
+        u, w = elbows[1] - elbows[0], np.asarray(reference_point) - elbows[0]
+        cross = u[0] * w[1] - u[1] * w[0]
         assembly = 1 if cross > 0 else -1
     if assembly not in (1, -1):
         raise ValueError(f"assembly mode must be +1 or -1, got {assembly}")
@@ -247,7 +248,7 @@ def pose_report(robot: Robot, points) -> dict:
     q = np.stack(q, axis=1)
     el = bases[None] + l1 * np.stack([np.cos(q), np.sin(q)], -1)
     w1, w2 = pts - el[:, 0], pts - el[:, 1]
-    sine = np.cross(w1, w2) / (l2 * l2)
+    sine = (w1[:, 0] * w2[:, 1] - w1[:, 1] * w2[:, 0]) / (l2 * l2)
     return {"c": np.stack(cs, axis=1), "distal_sine": sine, "q": q}
 
 

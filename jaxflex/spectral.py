@@ -31,15 +31,16 @@ def welch(x, fs: float, nperseg: int | None = None):
     idx = starts[:, None] + np.arange(nperseg)[None, :]
     seg = x[..., idx]                                            # (..., S, nperseg)
     seg = seg - jnp.mean(seg, axis=-1, keepdims=True)
-    win = jnp.asarray(np.hanning(nperseg + 1)[:-1])              # periodic Hann, as scipy
-    spec = jnp.fft.rfft(seg * win, axis=-1)
-    scale = 1.0 / (fs * jnp.sum(win**2))
+    win = np.hanning(nperseg + 1)[:-1]                           # periodic Hann, as scipy
+    spec = jnp.fft.rfft(seg * jnp.asarray(win).reshape((1,) * (seg.ndim - 1) + (-1,)), axis=-1)
+    scale = 1.0 / (fs * float(np.sum(win**2)))
     psd = jnp.abs(spec) ** 2 * scale
     one_sided = np.full(nperseg // 2 + 1, 2.0)
     one_sided[0] = 1.0
     if nperseg % 2 == 0:
         one_sided[-1] = 1.0
-    psd = jnp.mean(psd, axis=-2) * jnp.asarray(one_sided)
+    psd = jnp.mean(psd, axis=-2)
+    psd = psd * jnp.asarray(one_sided).reshape((1,) * (psd.ndim - 1) + (-1,))
     freqs = jnp.asarray(np.fft.rfftfreq(nperseg, 1.0 / fs))
     return freqs, psd
 
