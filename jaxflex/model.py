@@ -225,12 +225,13 @@ def ee_position(robot: Robot, qa, qe) -> jax.Array:
 
 def velocity_map(robot: Robot, q) -> jax.Array:
     """W (N, 2 + ne): q' = W [q_a', q_e'] with q_p' = -A^-1 (C q_a' + B q_e')."""
+    return _velocity_map(robot, *constraint_jacobians(robot, q))
+
+
+def _velocity_map(robot, a, b, c):
     lay = layout(robot)
-    a, b, c = constraint_jacobians(robot, q)
     wp = -jnp.linalg.solve(a, jnp.concatenate([c, b], axis=1))
-    w = jnp.zeros((lay.n, 2 + lay.ne))
-    w = w.at[:2 + lay.ne].set(jnp.eye(2 + lay.ne))
-    return w.at[lay.p].set(wp)
+    return jnp.concatenate([jnp.eye(2 + lay.ne), wp], axis=0)
 
 
 class Reduced(NamedTuple):
@@ -252,13 +253,13 @@ def reduced(robot: Robot, qa, qe, qad, qed) -> Reduced:
     """Reduced mass matrix and force vector at the state (q_a, q_e, q_a', q_e')."""
     lay = layout(robot)
     q = full_coordinates(robot, qa, qe)
-    wm = velocity_map(robot, q)
+    a, b, c = constraint_jacobians(robot, q)
+    wm = _velocity_map(robot, a, b, c)
     qid = jnp.concatenate([qad, qed])
     qd = wm @ qid
     # constraint acceleration term: A q_p'' + [C B] q_i'' + gamma = 0, gamma = f_qq[q', q']
     fdot = lambda qq: jax.jvp(lambda x: constraints(robot, x), (qq,), (qd,))[1]
     gamma = jax.jvp(fdot, (q,), (qd,))[1]
-    a, _, _ = constraint_jacobians(robot, q)
     w_acc = jnp.zeros(lay.n).at[lay.p].set(-jnp.linalg.solve(a, gamma))
     mq = mass_matrix(robot, q)
     mdot_qd = jax.jvp(lambda qq: mass_matrix(robot, qq) @ qd, (q,), (qd,))[1]

@@ -1,0 +1,282 @@
+"""Elastodynamic model (paper Section 2): beams, assembly, dynamics, statics, natural frequencies."""
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxflex import model as mdl
+from jaxflex.beams import beam_modes, bending_coefficients, bending_roots
+from jaxflex.rigid import rigid_torques
+from jaxflex.robot import cycle_preset, elbows, igm, robot_preset
+
+E, RHO, DIAM, L1, L2 = 70e9, 2710.0, 0.035, 0.24, 0.38079
+AREA, INERTIA = np.pi * DIAM**2 / 4, np.pi * DIAM**4 / 64
+
+
+# ---------------------------------------------------------------------------- single beams
+
+
+def test_table1_modal_parameters():
+    b = bending_roots(3)
+    np.testing.assert_allclose(b, [1.8751, 4.6941, 7.8548], atol=5e-5)          # Table 1, 5 digits
+    np.testing.assert_allclose(bending_coefficients(b), [-1.3622, -0.98186, -1.0008], atol=5e-5)
+    np.testing.assert_allclose(np.cos(b) * np.cosh(b), -1.0, atol=1e-12)
+
+
+@pytest.mark.parametrize("n", [3, 6])
+def test_cantilever_frequencies(n):
+    """Clamped-free beam: f_k = b_k^2 / (2 pi l^2) sqrt(EI / (rho A)) (1.8751^2, 4.6941^2, ...)."""
+    modes = beam_modes("bending", n)
+    m = RHO * AREA * L1 * modes.mass
+    k = E * INERTIA / L1**3 * modes.stiffness
+    freqs = np.sqrt(np.linalg.eigvalsh(np.linalg.solve(np.linalg.cholesky(m), k)
+                                       @ np.linalg.inv(np.linalg.cholesky(m)).T)) / (2 * np.pi)
+    exact = bending_roots(n) ** 2 / (2 * np.pi * L1**2) * np.sqrt(E * INERTIA / (RHO * AREA))
+    np.testing.assert_allclose(np.sort(freqs), exact, rtol=1e-12)   # exact modes: round-off only
+    assert abs(exact[0] - 1.8751**2 / (2 * np.pi * L1**2) * np.sqrt(E * INERTIA / (RHO * AREA))) < 0.1
+
+
+def test_axial_bar_frequencies():
+    """Fixed-free bar: f_k = (2k - 1) / (4 l) sqrt(E / rho)."""
+    modes = beam_modes("axial", 4)
+    lam = np.linalg.eigvals(np.linalg.solve(RHO * AREA * L2 * modes.mass, E * AREA / L2 * modes.stiffness))
+    exact = (2 * np.arange(1, 5) - 1) / (4 * L2) * np.sqrt(E / RHO)
+    np.testing.assert_allclose(np.sort(np.sqrt(lam.real)) / (2 * np.pi), exact, rtol=1e-12)
+
+
+def test_modal_tip_compliance_converges_to_beam_theory():
+    """Static tip compliance sum_k phi_k(1)^2 / K_k -> l^3/(3 EI) (bending) and l/(EA) (axial)."""
+    def compliance(kind, n, scale):
+        m = beam_modes(kind, n)
+        return m.tip @ np.linalg.solve(scale * m.stiffness, m.tip)
+
+    cb = [compliance("bending", n, E * INERTIA / L1**3) / (L1**3 / (3 * E * INERTIA)) for n in (3, 8)]
+    ca = [compliance("axial", n, E * AREA / L2) / (L2 / (E * AREA)) for n in (3, 8, 60)]
+    assert 0.99 < cb[0] < 1.0 and abs(cb[1] - 1) < 2e-4           # bending converges as n^-4
+    np.testing.assert_allclose(ca[0], 8 / np.pi**2 * (1 + 1 / 9 + 1 / 25), rtol=1e-12)
+    assert abs(ca[2] - 1) < 4e-3                                    # axial converges as 1/n
+
+
+# ---------------------------------------------------------------------------- assembly
+
+
+@pytest.fixture(scope="module")
+def robot6():
+    return robot_preset("default", payload=6.0)
+
+
+@pytest.fixture(scope="module")
+def pose(robot6):
+    return igm(robot6, jnp.array([-0.1, 0.28]))
+
+
+def test_closed_form_passive_solves_constraints_and_w_matches_autodiff(robot6, pose):
+    rng = np.random.default_rng(0)
+    qe = jnp.asarray(rng.normal(scale=1e-4, size=12))
+    q = mdl.full_coordinates(robot6, pose, qe)
+    assert float(jnp.max(jnp.abs(mdl.constraints(robot6, q)))) < 1e-15
+    a, b, c = mdl.constraint_jacobians(robot6, q)
+    assert a.shape == (8, 8) and b.shape == (8, 12) and c.shape == (8, 2)
+    w = mdl.velocity_map(robot6, q)
+    jac = jax.jacfwd(lambda qi: mdl.passive(robot6, qi[:2], qi[2:]))(jnp.concatenate([pose, qe]))
+    np.testing.assert_allclose(w[14:], jac, atol=1e-12)
+
+
+def test_mass_matrix_symmetric_positive(robot6, pose):
+    q = mdl.full_coordinates(robot6, pose, jnp.full(12, 1e-4))
+    m = jax.jit(mdl.mass_matrix)(robot6, q)
+    np.testing.assert_allclose(m, m.T, atol=1e-15)
+    red = jax.jit(mdl.reduced)(robot6, pose, jnp.full(12, 1e-4), jnp.zeros(2), jnp.zeros(12))
+    assert float(jnp.min(jnp.linalg.eigvalsh(red.mass))) > 0
+
+
+def test_inverse_then_direct_dynamics_roundtrip(robot6, pose):
+    rng = np.random.default_rng(3)
+    # elastic state of the size met along the paper's trajectories (tip deflections ~1e-5..1e-6 m)
+    qe, qed = jnp.asarray(rng.normal(scale=1e-6, size=12)), jnp.asarray(rng.normal(scale=1e-4, size=12))
+    qad, qadd = jnp.array([1.5, -2.0]), jnp.array([30.0, 12.0])
+    qedd, tau = jax.jit(mdl.inverse_dynamics)(robot6, pose, qe, qad, qed, qadd)
+    qadd2, qedd2 = jax.jit(mdl.direct_dynamics)(robot6, pose, qe, qad, qed, tau)
+    # M_r mixes rigid (kg m^2) and axial-mode (kg) scales: cond(M_r) ~ 1e7 amplifies round-off
+    cond = float(jnp.linalg.cond(mdl.reduced(robot6, pose, qe, qad, qed).mass))
+    # norm-wise backward-stable bound: |error| <~ eps cond(M_r) max|q_i''| (q_e'' ~ 1e3 x q_a'')
+    tol = 1e-15 * cond * float(jnp.max(jnp.abs(qedd)))
+    assert tol < 1e-3 * 12.0
+    np.testing.assert_allclose(qadd2, qadd, rtol=0, atol=tol)
+    np.testing.assert_allclose(qedd2, qedd, rtol=0, atol=tol)
+
+
+@pytest.mark.parametrize("payload, rotor", [(6.0, 0.0), (0.1, 2e-4)])
+def test_rigid_part_equals_independent_newton_euler(payload, rotor):
+    """At q_e = q_e' = q_e'' = 0 the assembled model is the rigid five-bar: its torques equal the
+    independent virtual-power rigid model to round-off."""
+    robot = robot_preset("default", payload=payload, rotor_inertia=rotor)
+    q = igm(robot, jnp.array([0.05, 0.27]))
+    qd, qdd = jnp.array([2.0, -1.0]), jnp.array([-25.0, 40.0])
+    red = mdl.reduced(robot, q, jnp.zeros(12), qd, jnp.zeros(12))
+    tau_model = red.mass[:2, :2] @ qdd + red.force[:2]
+    np.testing.assert_allclose(tau_model, rigid_torques(robot, q, qd, qdd), rtol=1e-11)
+
+
+def test_rigid_limit_of_quasi_static_elastic_torques():
+    """With the elastic coordinates in quasi-static equilibrium under the inertial load, the torque
+    error w.r.t. the rigid model falls like 1/E as the stiffness grows."""
+    q = igm(robot_preset(), jnp.array([0.05, 0.27]))
+    qd, qdd = jnp.array([2.0, -1.0]), jnp.array([-25.0, 40.0])
+
+    @jax.jit
+    def torque_error(robot):
+        def resid(qe):
+            red = mdl.reduced(robot, q, qe, qd, jnp.zeros(12))
+            return red.force[2:] + red.mass[2:, :2] @ qdd
+
+        newton = lambda _, qe: qe - jnp.linalg.solve(jax.jacfwd(resid)(qe), resid(qe))
+        qe = jax.lax.fori_loop(0, 4, newton, jnp.zeros(12))
+        red = mdl.reduced(robot, q, qe, qd, jnp.zeros(12))
+        tau = red.mass[:2, :2] @ qdd + red.force[:2]
+        return jnp.linalg.norm(tau - rigid_torques(robot, q, qd, qdd))
+
+    errs = [float(torque_error(robot_preset("default", payload=6.0, young=E * s))) for s in (1.0, 10.0, 100.0)]
+    assert errs[0] > 0
+    np.testing.assert_allclose(errs[1] / errs[0], 0.1, rtol=0.05)
+    np.testing.assert_allclose(errs[2] / errs[1], 0.1, rtol=0.05)
+
+
+# ---------------------------------------------------------------------------- statics
+
+
+def _beam_theory_deflection(robot, q, force, elbow_forces=np.zeros((2, 2))):
+    """Independent reference: end-effector deflection under an end-effector force (2,) and forces at
+    the elbows (2, 2) [N]. Distal links are two-force members (axial compliance c_a), proximal links
+    cantilevers loaded at the tip (compliance c_b), both with the model's modal truncation."""
+    bend, ax = beam_modes("bending", 3), beam_modes("axial", 3)
+    cb = bend.tip @ np.linalg.solve(E * INERTIA / L1**3 * bend.stiffness, bend.tip)
+    ca = ax.tip @ np.linalg.solve(E * AREA / L2 * ax.stiffness, ax.tip)
+    e = np.asarray(elbows(robot, q))
+    x = np.asarray(mdl.ee_position(robot, q, jnp.zeros(12)))
+    u = (x - e) / L2                                   # unit vectors elbow -> end effector
+    n = np.stack([-np.sin(q), np.cos(q)], 1)           # normals of the proximal links
+    tension = np.linalg.solve(u.T, force)              # F = N1 u1 + N2 u2
+    d_elbow = [cb * (tension[i] * u[i] + elbow_forces[i]) @ n[i] * n[i] for i in range(2)]
+    rhs = [tension[i] * ca + u[i] @ d_elbow[i] for i in range(2)]
+    return np.linalg.solve(u, rhs)
+
+
+def _beam_theory_ee_compliance(robot, q):
+    return np.stack([_beam_theory_deflection(robot, q, f) for f in np.eye(2)], axis=1)
+
+
+def test_static_deflection_under_end_effector_force():
+    robot = robot_preset("default", payload=6.0, gravity=(0.0, 0.0))
+    q = igm(robot, jnp.array([0.08, 0.27]))
+    x0 = mdl.ee_position(robot, q, jnp.zeros(12))
+    eq = jax.jit(lambda f: mdl.ee_position(robot, q, mdl.static_equilibrium(robot, q, f)) - x0)
+    k = mdl.locked_stiffness(robot, q, jnp.zeros(12))
+    w = mdl.velocity_map(robot, mdl.full_coordinates(robot, q, jnp.zeros(12)))
+    je = w[-2:, 2:]
+    compliance = je @ jnp.linalg.solve(k, je.T)
+    ref = _beam_theory_ee_compliance(robot, q)
+    # the assembled stiffness matrix and the independent two-force-member analysis agree
+    np.testing.assert_allclose(compliance, ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
+    for f in (jnp.array([20.0, 0.0]), jnp.array([0.0, -20.0]), jnp.array([14.0, 14.0])):
+        d_plus, d_minus = eq(f), eq(-f)
+        lin = compliance @ f
+        # geometric nonlinearity ~ deflection / link length ~ 1e-4
+        np.testing.assert_allclose(d_plus, lin, rtol=1e-3, atol=1e-3 * float(jnp.linalg.norm(lin)))
+        np.testing.assert_allclose(d_minus, -d_plus, rtol=1e-3, atol=1e-3 * float(jnp.linalg.norm(lin)))
+
+
+def test_gravity_sag_matches_beam_theory(robot6):
+    """Gravity along +y (the paper's convention) sags the end effector along +y. Reference: payload
+    plus half of each distal link at the end effector, the other halves at the elbows, and each
+    proximal link's own weight as the tip load with the same tip deflection (3/8 of it)."""
+    q = igm(robot6, jnp.array([0.0, 0.27]))
+    qe = mdl.static_equilibrium(robot6, q)
+    sag = np.asarray(mdl.ee_position(robot6, q, qe) - mdl.ee_position(robot6, q, jnp.zeros(12)))
+    m1, m2 = RHO * AREA * L1, RHO * AREA * L2
+    g = np.array([0.0, 9.81])
+    ref = _beam_theory_deflection(robot6, q, (6.0 + m2) * g, np.stack([(0.5 * m2 + 3 / 8 * m1) * g] * 2))
+    assert sag[1] > 0 and abs(sag[0]) < 1e-3 * sag[1]          # symmetric pose: vertical sag
+    # distributed loads are represented through 3 modes; axial self-weight of the distal links and
+    # their rotation are neglected in the reference: 2 %
+    np.testing.assert_allclose(sag, ref, rtol=0.02, atol=0.02 * abs(ref[1]))
+
+
+# ---------------------------------------------------------------------------- dynamics invariants
+
+
+def _rk4_locked(robot, qa, qe0, qed0, dt, steps):
+    def acc(qe, qed):
+        return mdl.inverse_dynamics(robot, qa, qe, jnp.zeros(2), qed, jnp.zeros(2))[0]
+
+    def step(state, _):
+        qe, qed = state
+        k1 = (qed, acc(qe, qed))
+        k2 = (qed + 0.5 * dt * k1[1], acc(qe + 0.5 * dt * k1[0], qed + 0.5 * dt * k1[1]))
+        k3 = (qed + 0.5 * dt * k2[1], acc(qe + 0.5 * dt * k2[0], qed + 0.5 * dt * k2[1]))
+        k4 = (qed + dt * k3[1], acc(qe + dt * k3[0], qed + dt * k3[1]))
+        new = (qe + dt / 6 * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0]),
+               qed + dt / 6 * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1]))
+        return new, new
+
+    return jax.lax.scan(step, (qe0, qed0), None, length=steps)[1]
+
+
+def test_energy_conserved_in_free_vibration_and_constraints_hold():
+    robot = robot_preset("default", payload=6.0, gravity=(0.0, 0.0))
+    qa = igm(robot, jnp.array([-0.1, 0.28]))
+    qe0 = mdl.static_equilibrium(robot, qa, jnp.array([150.0, -80.0]))     # released from a load
+    qed0 = jnp.asarray(np.random.default_rng(5).normal(scale=2e-3, size=12))
+    run = jax.jit(lambda: _rk4_locked(robot, qa, qe0, qed0, 2e-6, 6000))
+    qe, qed = run()
+
+    def energy(qe_, qed_):
+        red = mdl.reduced(robot, qa, qe_, jnp.zeros(2), qed_)
+        return 0.5 * qed_ @ red.mass[2:, 2:] @ qed_ + mdl.potential(robot, red.q)
+
+    e = jax.jit(jax.vmap(energy))(qe[::500], qed[::500])
+    e0 = energy(qe0, qed0)
+    assert float(jnp.max(jnp.abs(e - e0))) < 1e-6 * float(e0)     # RK4 at dt = 2 us: ~1e-8 drift
+    # constraints stay at round-off along the run (closed-form passive coordinates)
+    res = jax.jit(jax.vmap(lambda x: mdl.constraints(robot, mdl.full_coordinates(robot, qa, x))))(qe[::250])
+    assert float(jnp.max(jnp.abs(res))) < 1e-15
+    # the run really vibrates: elastic energy oscillates by a large fraction
+    assert float(jnp.max(jnp.abs(qe[:, :3] - qe0[None, :3]))) > 0.3 * float(jnp.max(jnp.abs(qe0[:3])))
+
+
+def test_damping_dissipates_energy():
+    robot = robot_preset("default", payload=6.0, gravity=(0.0, 0.0), damping=(0.0, 2e-5))
+    qa = igm(robot, jnp.array([-0.1, 0.28]))
+    qe0 = mdl.static_equilibrium(robot, qa, jnp.array([150.0, -80.0]))
+    qe, qed = jax.jit(lambda: _rk4_locked(robot, qa, qe0, jnp.zeros(12), 2e-6, 3000))()
+    e = lambda a, b: mdl.potential(robot, mdl.full_coordinates(robot, qa, a)) + 0.5 * b @ mdl.reduced(
+        robot, qa, a, jnp.zeros(2), b).mass[2:, 2:] @ b
+    assert float(e(qe[-1], qed[-1])) < 0.999 * float(e(qe0, jnp.zeros(12)))
+
+
+# ---------------------------------------------------------------------------- natural frequencies
+
+
+@pytest.fixture(scope="module")
+def path_points():
+    c = cycle_preset("default")
+    lift, pick, place = np.asarray(c.lift) * 0.025, np.asarray(c.pick), np.asarray(c.place)
+    return jnp.asarray([pick, pick + lift, 0.5 * (pick + place) + lift, place + lift, place])
+
+
+@pytest.mark.parametrize("payload, k, lo, hi", [
+    (6.0, 0, 57.0, 60.0),          # paper 58 +- 1 Hz; SPEC 4 FE reference 57-60 Hz
+    (0.1, 0, 124.0, 129.0),        # paper 126 +- 2 Hz; FE 125-129 Hz
+    (0.1, 2, 1860.0, 1940.0),      # paper 1912 +- 7.5 Hz; FE ~1890-1900 Hz (a few percent)
+])
+def test_natural_frequencies_along_path(path_points, payload, k, lo, hi):
+    robot = robot_preset("default", payload=payload)
+    freqs = jax.jit(jax.vmap(lambda x: mdl.modes_at_point(robot, x)))(path_points)
+    assert np.all(np.asarray(freqs[:, k]) > lo) and np.all(np.asarray(freqs[:, k]) < hi), freqs[:, k]
+
+
+def test_locked_modes_are_mass_normalized(robot6, pose):
+    freqs, shapes = mdl.locked_modes(robot6, pose)
+    m = mdl.reduced(robot6, pose, mdl.static_equilibrium(robot6, pose), jnp.zeros(2), jnp.zeros(12)).mass[2:, 2:]
+    np.testing.assert_allclose(shapes.T @ m @ shapes, np.eye(12), atol=1e-9)
+    assert np.all(np.diff(np.asarray(freqs)) >= 0)
