@@ -29,6 +29,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="time steps over [0, tf] for the maxima (default: %(default)s)")
     p.add_argument("--out", metavar="DIR", help="write Figs. 6, 7, 8, 10, 11 (PNG) to DIR")
 
+    p = sub.add_parser("modes", help="natural frequencies along the path (motors locked)",
+                       description="Natural frequencies and their spread along the Adept path with "
+                                   "the motors locked, linearized about the static equilibrium under "
+                                   "gravity (paper Section 4).")
+    _add_common(p)
+    p.add_argument("--payload", type=float, default=6.0, help="payload mass [kg] (default: %(default)s)")
+    p.add_argument("--points", type=int, default=21,
+                   help="points equally spaced in arc length (default: %(default)s)")
+    p.add_argument("--out", metavar="DIR", help="write a PNG of the first three frequencies to DIR")
+
     p = sub.add_parser("reproduce", help="the main job: every table and figure of the paper",
                        description="Reproduce the paper's tables and figures, ours beside the "
                                    "paper's with relative differences, as REPORT.md + CSV/JSON + "
@@ -53,6 +63,10 @@ def main(argv=None) -> int:
             from jaxflex.experiments import kinematics
 
             kinematics.run(args.preset, args.tf, out=args.out, json_path=args.json, steps=args.steps)
+        elif args.command == "modes":
+            from jaxflex.experiments import modes
+
+            modes.run(args.preset, args.payload, args.points, json_path=args.json, out=args.out)
         elif args.command == "reproduce":
             from jaxflex.experiments import reproduce
 

@@ -37,3 +37,18 @@ def test_kinematics_cli_json(tmp_path, capsys):
 def test_cli_reports_bad_input_without_traceback(capsys):
     assert main(["kinematics", "--tf", "-1"]) == 2
     assert "motion time tf must be finite and > 0" in capsys.readouterr().err
+
+
+def test_modes_cli_json(tmp_path):
+    out = tmp_path / "m.json"
+    assert main(["modes", "--payload", "6", "--points", "3", "--json", str(out)]) == 0
+    res = json.loads(out.read_text())
+    assert res["payload"] == 6.0 and len(res["points"]) == 3
+    for p in res["points"]:
+        assert set(p) >= {"s", "x", "y", "freqs_hz"}
+        assert p["freqs_hz"] == sorted(p["freqs_hz"]) and 56 < p["freqs_hz"][0] < 61
+
+
+def test_modes_cli_rejects_negative_payload(capsys):
+    assert main(["modes", "--payload", "-1"]) == 2
+    assert "payload must be >= 0" in capsys.readouterr().err
