@@ -34,7 +34,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxflex.beams import beam_modes
-from jaxflex.robot import Robot, circle_intersection, igm
+from jaxflex.robot import Robot, check_reachable, circle_intersection, igm
 
 
 class Layout(NamedTuple):
@@ -333,6 +333,17 @@ def locked_modes(robot: Robot, qa):
     return jnp.sqrt(jnp.maximum(lam, 0.0)) / (2.0 * jnp.pi), shapes
 
 
+def static_deflection(robot: Robot, qa, external=None) -> jax.Array:
+    """End-effector deflection (2,) [m] of the static equilibrium at the motor angles q_a w.r.t. the
+    rigid pose (gravity and an optional end-effector force [N])."""
+    qe = static_equilibrium(robot, qa, external)
+    return ee_position(robot, qa, qe) - ee_position(robot, qa, jnp.zeros_like(qe))
+
+
 def modes_at_point(robot: Robot, x):
-    """Locked-motor natural frequencies [Hz] at end-effector position x (2,) (rigid IGM pose)."""
+    """Locked-motor natural frequencies [Hz] (ne,) at end-effector position x (2,) (rigid IGM pose).
+
+    A concrete (non-traced) x is first checked for reachability and singularity (ValueError)."""
+    if not isinstance(x, jax.core.Tracer):
+        check_reachable(robot, np.asarray(x)[None], "pose")
     return locked_modes(robot, igm(robot, x))[0]

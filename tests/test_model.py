@@ -280,3 +280,18 @@ def test_locked_modes_are_mass_normalized(robot6, pose):
     m = mdl.reduced(robot6, pose, mdl.static_equilibrium(robot6, pose), jnp.zeros(2), jnp.zeros(12)).mass[2:, 2:]
     np.testing.assert_allclose(shapes.T @ m @ shapes, np.eye(12), atol=1e-9)
     assert np.all(np.diff(np.asarray(freqs)) >= 0)
+
+
+def test_singular_or_unreachable_pose_is_rejected(robot6):
+    with pytest.raises(ValueError, match="unreachable by arm 1"):
+        mdl.modes_at_point(robot6, jnp.array([-0.7, 0.3]))
+    reach = np.sqrt((L1 + L2) ** 2 - 0.0**2)
+    with pytest.raises(ValueError, match="serial singularity of arm 1"):
+        mdl.modes_at_point(robot6, jnp.array([-0.1, reach - 1e-7]))
+
+
+def test_static_deflection_is_the_gravity_sag(robot6, pose):
+    sag = mdl.static_deflection(robot6, pose)
+    no_g = mdl.static_deflection(robot6.replace(gravity=jnp.zeros(2)), pose)
+    assert float(jnp.linalg.norm(no_g)) < 1e-18
+    assert 1e-5 < float(sag[1]) < 1e-4          # tens of micrometres under 6 kg
