@@ -102,10 +102,13 @@ def _poly7(eta):
     return LawValues(s, ds, dds, ddds)
 
 
-def _trapezoid(ta, eta):
+def _trapezoid(ta, eta, side):
     v = 1.0 / (1.0 - ta)
     a = v / ta
-    rise, fall = eta < ta, eta > 1.0 - ta
+    if side > 0:      # right limits at the acceleration jumps
+        rise, fall = eta < ta, eta >= 1.0 - ta
+    else:             # left limits
+        rise, fall = eta <= ta, eta > 1.0 - ta
     r = 1.0 - eta
     s = jnp.where(rise, 0.5 * a * eta**2, jnp.where(fall, 1.0 - 0.5 * a * r**2, v * (eta - 0.5 * ta)))
     ds = jnp.where(rise, a * eta, jnp.where(fall, a * r, v))
@@ -139,13 +142,18 @@ def _shaped(coef, order, eta):
     return LawValues(s, vel(eta), d1(eta), d2(eta))
 
 
-def profile_eval(profile: Profile, eta) -> LawValues:
-    """S(eta) and its derivatives w.r.t. eta; eta is clipped to [0, 1] (any shape)."""
+def profile_eval(profile: Profile, eta, side: int = 1) -> LawValues:
+    """S(eta) and its derivatives w.r.t. eta; eta is clipped to [0, 1] (any shape).
+
+    ``side`` (+1 or -1, static) selects right or left limits where the law's acceleration jumps
+    (trapezoids): right limits by default, so that S''(0) is the starting acceleration; use -1 for
+    the value at the end of an interval, e.g. S''(1) = -a.
+    """
     eta = jnp.clip(jnp.asarray(eta, dtype=float), 0.0, 1.0)
     if profile.kind == "poly7":
         return _poly7(eta)
     if profile.kind == "trapezoid":
-        return _trapezoid(profile.ta, eta)
+        return _trapezoid(profile.ta, eta, side)
     if profile.kind == "shaped":
         return _shaped(profile.coef, profile.order, eta)
     raise ValueError(f"unknown profile kind {profile.kind!r}")

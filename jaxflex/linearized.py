@@ -1,0 +1,161 @@
+"""Linearized elastodynamics about the rigid motion, tabulated along the path (SPEC 4 fast formulation).
+
+With the motors following the rigid IGM of a path P(s), q_a = q_a(s), and
+    q_a' = q_a,s s',   q_a'' = q_a,ss s'^2 + q_a,s s''.
+Linearizing the inverse dynamic model ``jaxflex.model`` about q_e = q_e' = 0 gives
+
+    M(s) q_e'' + C q_e' + K q_e = f,              tau = tau_r + T_q q_e + T_v q_e' + M_ae q_e'',
+    f = f0 + f2 s'^2 + f1 s'',   K = K0 + K2 s'^2 + K1 s'',   C = C0 + C1 s',
+    tau_r = t0 + t2 s'^2 + t1 s'' (the rigid torque), T_q, T_v alike,
+
+and the end-effector error e = X(q_a, q_e) - X(q_a, 0) = J(s) q_e + O(q_e^2), so
+    e' = J q_e' + J1 s' q_e,   e'' = J q_e'' + 2 J1 s' q_e' + (J2 s'^2 + J1 s'') q_e.
+
+Every coefficient is a function of the pose only. The polynomial dependence on (s', s'') is exact
+(the equations are quadratic in velocities and linear in accelerations), so each coefficient is
+recovered from three evaluations of the nonlinear model, (s', s'') = (0, 0), (1, 0), (0, 1), with
+forward-mode Jacobians w.r.t. (q_e, q_e'). The coefficients are tabulated on per-segment uniform
+grids of the path (line, blend, traverse, blend, line) and interpolated with local cubics, which
+keeps their one-sided smoothness at the G2 joins. The tables do not depend on the motion law or tf.
+"""
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxflex import model as mdl
+from jaxflex.path import Path, path_frame
+from jaxflex.robot import Robot, joint_motion
+
+SEGMENT_NODES = (6, 24, 48, 24, 6)   # nodes per path segment (line, blend, traverse, blend, line)
+
+
+class Coeffs(NamedTuple):
+    """Linearization coefficients at one pose (ne elastic coordinates); see module docstring."""
+
+    mass: jax.Array   # (ne, ne) M
+    m_ae: jax.Array   # (2, ne) coupling of q_e'' into the torques
+    f0: jax.Array     # (ne,) forcing at rest (gravity)
+    f1: jax.Array     # (ne,) forcing per unit s''
+    f2: jax.Array     # (ne,) forcing per unit s'^2
+    k0: jax.Array     # (ne, ne)
+    k1: jax.Array
+    k2: jax.Array
+    c0: jax.Array     # (ne, ne) damping
+    c1: jax.Array     # (ne, ne) gyroscopic, per unit s'
+    t0: jax.Array     # (2,) rigid torque at rest
+    t1: jax.Array
+    t2: jax.Array
+    tq0: jax.Array    # (2, ne)
+    tq1: jax.Array
+    tq2: jax.Array
+    tv0: jax.Array    # (2, ne)
+    tv1: jax.Array
+    jx: jax.Array     # (2, ne) J = dX/dq_e
+    jx1: jax.Array    # (2, ne) dJ/dq_a . q_a,s
+    jx2: jax.Array    # (2, ne) d2J/dq_a2 [q_a,s, q_a,s] + dJ/dq_a . q_a,ss
+
+
+def pose_coeffs(robot: Robot, qa, qa1, qa2) -> Coeffs:
+    """Coefficients at motor angles qa (2,) with path derivatives qa1 = dq_a/ds, qa2 = d2q_a/ds2."""
+    ne = mdl.layout(robot).ne
+    zero_e = jnp.zeros(ne)
+
+    def residual(z, qad, qadd):
+        red = mdl.reduced(robot, qa, z[:ne], qad, z[ne:])
+        return red.mass[:, :2] @ qadd + red.force
+
+    def at(qad, qadd):
+        z0 = jnp.zeros(2 * ne)
+        return residual(z0, qad, qadd), jax.jacfwd(residual)(z0, qad, qadd)
+
+    zero2 = jnp.zeros(2)
+    r00, j00 = at(zero2, zero2)
+    r10, j10 = at(qa1, qa2)          # s' = 1, s'' = 0
+    r01, j01 = at(zero2, qa1)        # s' = 0, s'' = 1
+    m = mdl.reduced(robot, qa, zero_e, zero2, zero_e).mass
+    e, a = slice(2, None), slice(0, 2)
+    q, v = slice(0, ne), slice(ne, None)
+
+    def jx_of(qq):
+        return jax.jacfwd(lambda x: mdl.ee_position(robot, qq, x))(zero_e)
+
+    jx, jx1 = jax.jvp(jx_of, (qa,), (qa1,))
+    d_jx1 = lambda qq: jax.jvp(jx_of, (qq,), (qa1,))[1]
+    jx2 = jax.jvp(d_jx1, (qa,), (qa1,))[1] + jax.jvp(jx_of, (qa,), (qa2,))[1]
+    return Coeffs(
+        mass=m[e, e], m_ae=m[a, e],
+        f0=-r00[e], f1=-(r01 - r00)[e], f2=-(r10 - r00)[e],
+        k0=j00[e, q], k1=(j01 - j00)[e, q], k2=(j10 - j00)[e, q],
+        c0=j00[e, v], c1=(j10 - j00)[e, v],
+        t0=r00[a], t1=(r01 - r00)[a], t2=(r10 - r00)[a],
+        tq0=j00[a, q], tq1=(j01 - j00)[a, q], tq2=(j10 - j00)[a, q],
+        tv0=j00[a, v], tv1=(j10 - j00)[a, v],
+        jx=jx, jx1=jx1, jx2=jx2,
+    )
+
+
+def path_pose(robot: Robot, path: Path, s):
+    """Motor angles and their first two arc-length derivatives at arc length s (scalar)."""
+    f = path_frame(path, s)
+    return joint_motion(robot, f.pos, f.tangent, f.curv)
+
+
+class Tables(NamedTuple):
+    """Coefficients tabulated along a path: ``values`` leaves have a leading node axis (sum of
+    SEGMENT_NODES); ``breaks`` (6,) are the path's segment boundaries [m]."""
+
+    values: Coeffs
+    breaks: jax.Array
+
+
+def _segment_nodes(breaks):
+    pieces = []
+    for k, n in enumerate(SEGMENT_NODES):
+        pieces.append(breaks[k] + (breaks[k + 1] - breaks[k]) * jnp.linspace(0.0, 1.0, n))
+    return jnp.concatenate(pieces)
+
+
+def build_tables(robot: Robot, path: Path) -> Tables:
+    """Tabulate the linearization coefficients along the path (vmapped over the nodes)."""
+    breaks = path.breaks
+    s = _segment_nodes(breaks)
+
+    def one(si):
+        qa, qa1, qa2 = path_pose(robot, path, si)
+        return pose_coeffs(robot, qa, qa1, qa2)
+
+    return Tables(values=jax.vmap(one)(s), breaks=breaks)
+
+
+def interpolate(tables: Tables, s) -> Coeffs:
+    """Coefficients at arc length s (scalar) by local cubic interpolation within its segment."""
+    br = tables.breaks
+    counts = np.array(SEGMENT_NODES)
+    offsets = jnp.asarray(np.concatenate([[0], np.cumsum(counts)[:-1]]))
+    s = jnp.clip(s, br[0], br[-1])
+    seg = jnp.clip(jnp.sum(s >= br[1:5]), 0, 4)
+    a, b = br[seg], br[seg + 1]
+    n = jnp.asarray(counts)[seg]
+    width = b - a
+    u = jnp.where(width > 0, (s - a) / jnp.where(width > 0, width, 1.0), 0.0) * (n - 1)
+    i0 = jnp.clip(jnp.floor(u).astype(int) - 1, 0, n - 4)
+    t = u - i0
+    w = jnp.stack([-(t - 1) * (t - 2) * (t - 3) / 6, t * (t - 2) * (t - 3) / 2,
+                   -t * (t - 1) * (t - 3) / 2, t * (t - 1) * (t - 2) / 6])
+    idx = offsets[seg] + i0 + jnp.arange(4)
+    return jax.tree_util.tree_map(lambda v: jnp.tensordot(w, v[idx], axes=1), tables.values)
+
+
+def evaluate(c: Coeffs, ds, dds):
+    """Mass, stiffness, damping, forcing and torque maps at path speed ds [m/s], acceleration dds."""
+    k = c.k0 + c.k2 * ds**2 + c.k1 * dds
+    cc = c.c0 + c.c1 * ds
+    f = c.f0 + c.f2 * ds**2 + c.f1 * dds
+    tq = c.tq0 + c.tq2 * ds**2 + c.tq1 * dds
+    tv = c.tv0 + c.tv1 * ds
+    tr = c.t0 + c.t2 * ds**2 + c.t1 * dds
+    return c.mass, k, cc, f, tq, tv, tr
