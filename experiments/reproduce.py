@@ -8,8 +8,10 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from . import kinematics, modes
-from .io import provenance, write_json, write_text
+import numpy as np
+
+from . import kinematics, modes, vibration
+from .io import provenance, table, write_json, write_text
 
 
 def run(out: str = "results", quick: bool = False) -> dict:
@@ -46,6 +48,12 @@ def run(out: str = "results", quick: bool = False) -> dict:
         "*First three natural frequencies along the path for 6 kg and 0.1 kg.*", "",
         "With the `table6` preset the first frequency at 6 kg is about 29 Hz instead of 58 Hz: no "
         "placement with Table 3's links reproduces both Table 6 and the frequencies (SPEC 2).", ""]))
+
+    print("== vibration study (paper Section 4: Tables 7-11, Fig. 12)", flush=True)
+    vib = vibration.compute(quick=quick)
+    results["vibration"] = vib
+    write_json(out / "vibration.json", vib)
+    sections.append(_vibration_section(vib, fig_dir, out))
 
     prov = provenance({"out": str(out), "quick": quick}, started)
     header = ["# jaxflex reproduction report", "",
@@ -103,3 +111,84 @@ def _kinematics_section(results, fig_dir: Path, out: Path) -> str:
         if key in figs:
             lines += [f"![{cap}]({rel(figs[key])})", "", f"*{cap}*", ""]
     return "\n".join(lines)
+
+
+def _vibration_section(vib: dict, fig_dir: Path, out: Path) -> str:
+    from jaxflex import plotting
+
+    from . import paper_data
+    from .io import save_figure, write_text
+
+    c0, c1 = vib["case0"], vib["case1"]
+    g = vib["grid"]
+    f12 = vib["fig12"]
+    fig = fig_dir / "fig12_tracking_errors_6kg.png"
+    save_figure(plotting.tracking_errors(f12["t"], f12["t_dwell"], f12["e_norm_mm"], f12["e_dwell_mm"],
+                                         "Fig. 12: end-effector error, 6 kg, tf = 0.43 s"), fig)
+    # CSV of every metric, both cases
+    lines = ["case,payload_kg,tf_s,blend,profile," + ",".join(vibration.METRICS)]
+    for k, case in enumerate(vib["cases"]):
+        cc = vib[f"case{k}"]
+        for b in cc["max_torque_nm"]:
+            for p in cc["max_torque_nm"][b]:
+                lines.append(f"{k},{case['payload']},{case['tf']},{b},{p}," + ",".join(
+                    f"{cc[m][b][p]:.8g}" for m in vibration.METRICS))
+    write_text(out / "vibration.csv", "\n".join(lines) + "\n")
+    cmp = vibration.compare
+    spec_rows = []
+    for key, v in vib["dwell_spectra"].items():
+        spec_rows.append([key, ", ".join(f"{x:.1f}" for x in v["peaks_hz"]),
+                          ", ".join(f"{x:.1f}" for x in v["locked_modes_hz"])])
+    dt = vib["cases"][0]["tf"] / (g["coarse"] * g["fine"])
+    ratio = lambda m: float(np.median([c0[m][b][p] / paper_data.TABLE7[m][b][p] for b in c0[m] for p in c0[m][b]]))
+    a_max = vib["task_acc_max_6kg_lame_poly7"]
+    f1 = float(vib["dwell_spectra"]["6kg/lame/poly7"]["locked_modes_hz"][0])
+    text = [
+        "## 3. Vibration study (paper Section 4)", "",
+        "Inverse elastodynamic simulation with a perfect controller (motors on the rigid IGM of the "
+        "desired path), start from the static equilibrium at the pick pose, then a 0.1 s dwell with the "
+        f"motors holding the place pose. Fast formulation (SPEC 4), step {dt * 1e6:.0f} us over the motion "
+        f"(tf/{g['coarse'] * g['fine']}), {g['dwell_steps']} dwell steps; all 24 runs in one jitted call: "
+        f"compile {vib['timing']['compile_s']:.1f} s, run {vib['timing']['run_s'] * 1e3:.0f} ms. "
+        "Gravity +y (paper: upwards), no damping (as the paper).", "",
+        "### Table 7: 6 kg, tf = 0.43 s, along the motion", "",
+        *[cmp(c0, paper_data.TABLE7[m], m) + "\n" for m in ("max_torque_nm", "rms_acc_error", "max_deflection_mm")],
+        "### Table 8: 6 kg, tf = 0.43 s, residual errors at tf", "",
+        *[cmp(c0, paper_data.TABLE8[m], m) + "\n" for m in ("residual_pos_mm", "residual_vel", "residual_acc")],
+        "### Table 9: 0.1 kg, tf = 0.3 s, along the motion", "",
+        *[cmp(c1, paper_data.TABLE9[m], m) + "\n" for m in ("max_torque_nm", "rms_acc_error", "max_deflection_mm")],
+        "### Table 10: 0.1 kg, tf = 0.3 s, residual errors at tf", "",
+        *[cmp(c1, paper_data.TABLE10[m], m) + "\n" for m in ("residual_pos_mm", "residual_vel", "residual_acc")],
+        "### Table 11: short vs extended blends (residuals at tf)", "",
+        "The paper states neither payload nor tf for Table 11; shown for the 6 kg / 0.43 s case. "
+        "Extended: d = 25 mm, Lamé e = 44.5 mm (fits the paper's 59.307 mm length), clothoid e = 44 mm; "
+        "the last column is Lamé with e = 125 mm as the paper's text says.", "",
+        vibration.table11(vib["extended"], c0, 0), "",
+        "### Fig. 12", "", f"![Fig. 12]({fig.relative_to(out).as_posix()})", "",
+        "*End-effector error |e| during the motion (left) and the residual vibration |e - e_static| in "
+        "the dwell (right), 6 kg, tf = 0.43 s, 12 combinations.*", "",
+        "### Which modes are excited", "",
+        "Dominant frequencies of the dwell vibration (Welch PSD of e) beside the locked-motor natural "
+        "frequencies at the place pose:", "",
+        table(["run", "dwell peaks [Hz]", "locked modes [Hz]"], spec_rows), "",
+        "### Where we differ from the paper, and why", "",
+        f"- Magnitudes: our 6 kg torques are {ratio('max_torque_nm'):.2f}x and our deflections "
+        f"{ratio('max_deflection_mm'):.2f}x the paper's (median ratio over the 12 runs). The deflection "
+        "follows from the model's own stiffness: a quasi-static estimate delta ~ a_max / omega_1^2, with "
+        f"a_max = {a_max:.1f} m/s^2 (poly7 Lamé at tf = 0.43 s) and omega_1 = 2 pi {f1:.1f} Hz, gives "
+        f"{1e3 * a_max / (2 * np.pi * f1) ** 2:.3f} mm, the size we find "
+        f"({c0['max_deflection_mm']['lame']['poly7']:.3f} mm), not the paper's "
+        f"{paper_data.TABLE7['max_deflection_mm']['lame']['poly7']} mm: the paper's natural frequencies "
+        "(which we reproduce) and its deflections are mutually inconsistent under a perfect controller. "
+        "Torques also depend on the unpublished placement of the cycle (SPEC 2).",
+        "- Residuals at tf are phase-sensitive: a 1 % change of frequency or tf moves them by large "
+        "factors, so cell-by-cell agreement is not expected; orderings (trap_1_8 worst, smooth laws "
+        "best) are the comparable content.",
+        "- Acceleration metrics contain every mode up to ~18 kHz undamped; our integrator has no "
+        "numerical damping, the paper's (Simulink, 10 MHz) is unknown.",
+        "- The paper's Tables 8 and 10 contain copied rows/cells. Values that occur in more than one "
+        "cell of the two tables:", "",
+        *[f"  - {x}" for x in vibration.duplicated_cells()], "",
+        "  The clothoid and polar columns of Table 8 (6 kg) are identical to Table 10's (0.1 kg) for "
+        "position and velocity, which two different payloads and motion times cannot produce.", ""]
+    return "\n".join(text)

@@ -39,6 +39,25 @@ def build_parser() -> argparse.ArgumentParser:
                    help="points equally spaced in arc length (default: %(default)s)")
     p.add_argument("--out", metavar="DIR", help="write a PNG of the first three frequencies to DIR")
 
+    p = sub.add_parser("sweep", help="simulate the 12 path-profile combinations (paper Section 4)",
+                       description="Inverse elastodynamic simulation (perfect controller) of the 12 "
+                                   "blend x motion-law combinations for one payload and motion time, "
+                                   "then a dwell at the place pose; every SPEC 5 metric per run.")
+    _add_common(p)
+    p.add_argument("--payload", type=float, default=6.0, help="payload mass [kg] (default: %(default)s)")
+    p.add_argument("--tf", type=float, default=0.43, help="motion time [s] (default: %(default)s)")
+    p.add_argument("--dt", type=float, default=None,
+                   help="integration step [s] (default: 1e-4, converged; see REPORT.md)")
+    p.add_argument("--dwell", type=float, default=0.1,
+                   help="dwell after the motion, motors holding the place pose [s] (default: %(default)s)")
+
+    p = sub.add_parser("bench", help="compile and run times of the batched sweep and of a gradient",
+                       description="Benchmarks: compile time and median run time of the 24-rollout "
+                                   "sweep (12 combinations x 2 paper cases) and of one gradient of the "
+                                   "residual objective; steps per second and peak memory.")
+    p.add_argument("--json", metavar="PATH", help="also write the results as JSON to PATH")
+    p.add_argument("--repeats", type=int, default=5, help="timed repeats (default: %(default)s)")
+
     p = sub.add_parser("reproduce", help="the main job: every table and figure of the paper",
                        description="Reproduce the paper's tables and figures, ours beside the "
                                    "paper's with relative differences, as REPORT.md + CSV/JSON + "
@@ -50,10 +69,23 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _enable_compilation_cache(jax) -> None:
+    """Persistent XLA compilation cache (JAXFLEX_CACHE_DIR, default ~/.cache/jaxflex/jax; set it to
+    an empty string to disable): repeated CLI runs skip most compilation."""
+    import os
+
+    cache = os.environ.get("JAXFLEX_CACHE_DIR",
+                           os.path.join(os.path.expanduser("~"), ".cache", "jaxflex", "jax"))
+    if cache:
+        jax.config.update("jax_compilation_cache_dir", cache)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+
+
 def main(argv=None) -> int:
     import jax
 
     jax.config.update("jax_enable_x64", True)
+    _enable_compilation_cache(jax)
     args = build_parser().parse_args(argv)
     if args.command is None:
         build_parser().print_help()
@@ -67,6 +99,14 @@ def main(argv=None) -> int:
             from jaxflex.experiments import modes
 
             modes.run(args.preset, args.payload, args.points, json_path=args.json, out=args.out)
+        elif args.command == "sweep":
+            from jaxflex.experiments import sweep
+
+            sweep.run(args.preset, args.payload, args.tf, args.dt, args.dwell, json_path=args.json)
+        elif args.command == "bench":
+            from jaxflex.experiments import bench
+
+            bench.run(repeats=args.repeats, json_path=args.json)
         elif args.command == "reproduce":
             from jaxflex.experiments import reproduce
 

@@ -119,16 +119,22 @@ def _segment_nodes(breaks):
     return jnp.concatenate(pieces)
 
 
+def table_poses(robot: Robot, path: Path):
+    """Table nodes: motor angles and their arc-length derivatives, each (K, 2), at the nodes of the
+    path (K = sum(SEGMENT_NODES)). Cheap; depends on the blend family (static)."""
+    s = _segment_nodes(path.breaks)
+    return jax.vmap(lambda si: path_pose(robot, path, si))(s)
+
+
+def coeffs_at(robot: Robot, qa, qa1, qa2) -> Coeffs:
+    """Linearization coefficients at a batch of poses (K, 2) each. Independent of the path family,
+    so one compiled function serves every blend (the expensive part of the tables)."""
+    return jax.vmap(lambda a, b, c: pose_coeffs(robot, a, b, c))(qa, qa1, qa2)
+
+
 def build_tables(robot: Robot, path: Path) -> Tables:
     """Tabulate the linearization coefficients along the path (vmapped over the nodes)."""
-    breaks = path.breaks
-    s = _segment_nodes(breaks)
-
-    def one(si):
-        qa, qa1, qa2 = path_pose(robot, path, si)
-        return pose_coeffs(robot, qa, qa1, qa2)
-
-    return Tables(values=jax.vmap(one)(s), breaks=breaks)
+    return Tables(values=coeffs_at(robot, *table_poses(robot, path)), breaks=path.breaks)
 
 
 def interpolate(tables: Tables, s) -> Coeffs:
@@ -141,9 +147,9 @@ def interpolate(tables: Tables, s) -> Coeffs:
     a, b = br[seg], br[seg + 1]
     n = jnp.asarray(counts)[seg]
     width = b - a
-    u = jnp.where(width > 0, (s - a) / jnp.where(width > 0, width, 1.0), 0.0) * (n - 1)
+    u = jnp.where(width > 0, (s - a) / jnp.where(width > 0, width, 1.0), 0.0) * (n - 1).astype(float)
     i0 = jnp.clip(jnp.floor(u).astype(int) - 1, 0, n - 4)
-    t = u - i0
+    t = u - i0.astype(float)
     w = jnp.stack([-(t - 1) * (t - 2) * (t - 3) / 6, t * (t - 2) * (t - 3) / 2,
                    -t * (t - 1) * (t - 3) / 2, t * (t - 1) * (t - 2) / 6])
     idx = offsets[seg] + i0 + jnp.arange(4)

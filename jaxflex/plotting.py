@@ -102,3 +102,23 @@ def lines(x, series: dict, xlabel: str, ylabel: str, title: str, logy: bool = Fa
     ax.legend(fontsize=8)
     fig.tight_layout()
     return fig
+
+
+def tracking_errors(t, t_dwell, e_norm: dict, e_dwell: dict, title: str):
+    """Fig. 12: |e| [mm] over the motion (left) and |e - e_static| over the dwell (right), one line
+    per 'blend/profile' key, one colour per profile and one line style per blend."""
+    import matplotlib.pyplot as plt
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(12, 4.2), sharey=False)
+    colors = {"poly7": "C0", "bang_bang": "C1", "trap_1_4": "C2", "trap_1_8": "C3"}
+    styles = {"lame": "-", "clothoid": "--", "polar": ":"}
+    for key, v in e_norm.items():
+        blend, prof = key.split("/")
+        a.plot(t, v, styles.get(blend, "-"), color=colors.get(prof), lw=1, label=key)
+        b.plot(t_dwell, e_dwell[key], styles.get(blend, "-"), color=colors.get(prof), lw=0.8)
+    a.set(xlabel="t [s]", ylabel="|e| [mm]", title="during the motion")
+    b.set(xlabel="t [s]", ylabel="|e - e_static| [mm]", title="dwell at the place pose", yscale="log")
+    a.legend(fontsize=6, ncol=3)
+    fig.suptitle(title)
+    fig.tight_layout()
+    return fig

@@ -24,6 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxflex import linalg
 from jaxflex.expm import expm_fixed
 from jaxflex.linearized import Coeffs, Tables, evaluate, interpolate
 from jaxflex.profiles import Profile, profile_eval
@@ -81,7 +82,7 @@ class Series(NamedTuple):
     e, ed, edd (T, 2) end-effector error X - X_desired [m], its rate [m/s] and acceleration [m/s^2],
     and tau (T, 2) motor torques [N m]. e_static (2,) is the static error (gravity sag) at the place
     pose; energy_tf [J] the vibration energy at tf relative to the static equilibrium at the place
-    pose; state_tf (2 ne,) the elastic state [q_e, q_e'] at tf; dt and dt_dwell the sample steps [s].
+    pose and energy_dwell (Nd + 1,) [J] the same over the dwell; state_tf (2 ne,) the elastic state [q_e, q_e'] at tf; dt and dt_dwell the sample steps [s].
     """
 
     t: jax.Array
@@ -96,6 +97,7 @@ class Series(NamedTuple):
     tau_dwell: jax.Array
     e_static: jax.Array
     energy_tf: jax.Array
+    energy_dwell: jax.Array
     state_tf: jax.Array
     dt: jax.Array
     dt_dwell: jax.Array
@@ -137,15 +139,15 @@ def _propagator(m, k, c, h, squarings):
     integrals follow from A^-1: G0 = A^-1 (Phi - I) B, G1 = A^-1 (G0 - h B) / h.
     """
     ne = m.shape[0]
-    lower = jnp.linalg.cholesky(m)
-    li = jax.scipy.linalg.solve_triangular(lower, jnp.eye(ne), lower=True)   # L^-1
+    lower = linalg.cholesky(m)
+    li = linalg.lower_inverse(lower)   # L^-1
     ks = li @ k @ li.T
     cs = li @ c @ li.T
     w = jnp.sqrt(jnp.maximum(jnp.trace(ks), 1e-30) / ne)
     eye, zero = jnp.eye(ne), jnp.zeros((ne, ne))
     a = jnp.block([[zero, w * eye], [-ks / w, -cs]])
     phi_y = expm_fixed(a * h, squarings)
-    ks_inv = jnp.linalg.inv(ks)
+    ks_inv = linalg.inv(ks)
     a_inv = jnp.block([[-ks_inv @ cs, -w * ks_inv], [eye / w, zero]])
     b = jnp.concatenate([zero, eye / w], axis=0)                  # mass-normalized force -> y'
     g0_y = a_inv @ ((phi_y - jnp.eye(2 * ne)) @ b)
@@ -163,7 +165,7 @@ def _frozen(c: dict, ds, dds, h, squarings) -> _Frozen:
     tq = c["tq0"] + c["tq2"] * ds**2 + c["tq1"] * dds
     tv = c["tv0"] + c["tv1"] * ds
     phi, g0, g1 = _propagator(c["mass"], k, cc, h, squarings)
-    return _Frozen(phi, g0, g1, jnp.linalg.inv(c["mass"]), k, cc, tq, tv, c["m_ae"])
+    return _Frozen(phi, g0, g1, linalg.inv(c["mass"]), k, cc, tq, tv, c["m_ae"])
 
 
 def _forcing(c: dict, ds, dds):
@@ -209,7 +211,7 @@ def rollout(tables: Tables, samples: MotionSamples, tf, dwell, grid: Grid) -> Se
 
     # ---- initial static equilibrium at the pick pose (s = 0, at rest)
     rest0 = interpolate(_sub(tables, _SLOW + _FAST), tables.breaks[0])
-    q0 = jnp.linalg.solve(rest0["k0"], rest0["f0"])
+    q0 = linalg.solve(rest0["k0"], rest0["f0"])
     x0 = jnp.concatenate([q0, jnp.zeros_like(q0)])
 
     per = lambda a: a.reshape((nc, m) + a.shape[1:])
@@ -235,7 +237,7 @@ def rollout(tables: Tables, samples: MotionSamples, tf, dwell, grid: Grid) -> Se
     zero = jnp.zeros(())
     fz_d = _frozen(rest, zero, zero, hd, grid.squarings)
     f_d, tr_d = _forcing(rest, zero, zero)
-    q_star = jnp.linalg.solve(rest["k0"], rest["f0"])
+    q_star = linalg.solve(rest["k0"], rest["f0"])
     e_static = rest["jx"] @ q_star
 
     b_d = jnp.broadcast_to(fz_d.g0 @ f_d, (grid.dwell_steps, x_tf.shape[0]))
@@ -244,11 +246,15 @@ def rollout(tables: Tables, samples: MotionSamples, tf, dwell, grid: Grid) -> Se
     yd = jax.vmap(lambda xx: _outputs(fz_d, rest, zero, zero, xx, f_d, tr_d))(xd_states)
 
     ne = q0.shape[0]
-    dq = x_tf[:ne] - q_star
     ksym = 0.5 * (rest["k0"] + rest["k0"].T)
-    energy = 0.5 * x_tf[ne:] @ rest["mass"] @ x_tf[ne:] + 0.5 * dq @ ksym @ dq
-    t = jnp.arange(n + 1) * h
-    td = tf + jnp.arange(grid.dwell_steps + 1) * hd
+
+    def energy(x):
+        dq = x[:ne] - q_star
+        return 0.5 * x[ne:] @ rest["mass"] @ x[ne:] + 0.5 * dq @ ksym @ dq
+
+    t = jnp.arange(n + 1, dtype=float) * h
+    td = tf + jnp.arange(grid.dwell_steps + 1, dtype=float) * hd
     return Series(t=t, e=ys[:, 0], ed=ys[:, 1], edd=ys[:, 2], tau=ys[:, 3],
                   t_dwell=td, e_dwell=yd[:, 0], ed_dwell=yd[:, 1], edd_dwell=yd[:, 2], tau_dwell=yd[:, 3],
-                  e_static=e_static, energy_tf=energy, state_tf=x_tf, dt=h, dt_dwell=hd)
+                  e_static=e_static, energy_tf=energy(x_tf),
+                  energy_dwell=jax.vmap(energy)(xd_states), state_tf=x_tf, dt=h, dt_dwell=hd)

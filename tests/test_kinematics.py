@@ -89,7 +89,9 @@ def test_table5_task_accelerations(table5, blend):
     for prof, ref in zip(("poly7", "bang_bang", "trap_1_4", "trap_1_8"), SPEC3_TASK_ACC[blend]):
         val = table5[(blend, prof)]
         if ref is None:
-            assert 10.05 <= val <= 10.15, val
+            # SPEC 3 range 10.05-10.15, quoted to 2 decimals (the sampled grid hits the right limit
+            # at the acceleration jump, where the supremum 10.1507 sits)
+            assert 10.045 <= val < 10.155, val
         else:
             # SPEC 3 rounds to 2 decimals: 0.5 % (Lamé/polar) and rounding for the clothoid
             assert abs(val / ref - 1) < 0.005, (blend, prof, val, ref)

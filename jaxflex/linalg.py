@@ -1,0 +1,83 @@
+"""Small dense linear algebra in pure ``jax.numpy`` (no LAPACK custom calls).
+
+Used by the batched fast rollouts (``jaxflex.simulate``), where tiny (12 x 12) matrices are factorized
+thousands of times inside one vmapped, jitted program. jaxlib's CPU LAPACK kernels (``getrf`` behind ``jnp.linalg.solve``
+and ``inv``) deadlock intermittently when XLA runs several of them concurrently in a large batched
+program (observed with jax 0.10.2 on 2 cores: the process waits forever with all threads idle; the
+same class as jax-ml/jax#24219). The model functions (``jaxflex.model``) keep LAPACK: their programs
+are smaller and compile faster with it, and no hang was observed there. These unrolled eliminations are plain arithmetic, so they fuse, batch
+and differentiate like any other jnp code and cannot hit that bug.
+"""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+
+def solve(a: jax.Array, b: jax.Array) -> jax.Array:
+    """Solve a x = b by Gaussian elimination with partial pivoting.
+
+    a: (n, n); b: (n,) or (n, k). Returns x with the shape of b. Differentiable (the pivot choice is
+    piecewise constant; derivatives flow through the arithmetic as for LU). The elimination is a
+    rolled ``fori_loop`` so that the compiled program stays small inside scans and autodiff."""
+    n = a.shape[-1]
+    if a.shape != (n, n) or b.shape[0] != n:
+        raise ValueError(f"solve: shapes {a.shape} and {b.shape} do not match")
+    vec = b.ndim == 1
+    m = jnp.concatenate([a, b[:, None] if vec else b], axis=1)
+    rows = jnp.arange(n)
+
+    def eliminate(k, m):
+        colk = jax.lax.dynamic_index_in_dim(m, k, axis=1, keepdims=False)
+        p = jnp.argmax(jnp.where(rows >= k, jnp.abs(colk), -1.0))
+        rk = jax.lax.dynamic_index_in_dim(m, k, keepdims=False)
+        rp = jax.lax.dynamic_index_in_dim(m, p, keepdims=False)
+        m = jnp.where((rows == p)[:, None], rk[None], jnp.where((rows == k)[:, None], rp[None], m))
+        pivot = rp[k]
+        colk = jnp.where(rows == p, colk[k], jnp.where(rows == k, pivot, colk))
+        factor = jnp.where(rows > k, colk / pivot, 0.0)
+        return m - factor[:, None] * rp[None, :]
+
+    m = jax.lax.fori_loop(0, n, eliminate, m)
+    u, y = m[:, :n], m[:, n:]
+
+    def back(i, x):
+        k = n - 1 - i
+        uk = jax.lax.dynamic_index_in_dim(u, k, keepdims=False)
+        yk = jax.lax.dynamic_index_in_dim(y, k, keepdims=False)
+        xk = (yk - uk @ x) / uk[k]
+        return jax.lax.dynamic_update_index_in_dim(x, xk, k, axis=0)
+
+    x = jax.lax.fori_loop(0, n, back, jnp.zeros_like(y))
+    return x[:, 0] if vec else x
+
+
+def inv(a: jax.Array) -> jax.Array:
+    """Inverse of a small square matrix (see ``solve``)."""
+    return solve(a, jnp.eye(a.shape[-1], dtype=a.dtype))
+
+
+def cholesky(a: jax.Array) -> jax.Array:
+    """Lower Cholesky factor L (a = L L^T) of a symmetric positive definite matrix, (n, n)."""
+    n = a.shape[-1]
+    cols = []
+    for j in range(n):
+        v = a[:, j]
+        for i, c in enumerate(cols):
+            v = v - c * c[j]
+        d = jnp.sqrt(v[j])
+        cols.append(jnp.where(jnp.arange(n) >= j, v / d, 0.0))
+    return jnp.stack(cols, axis=1)
+
+
+def lower_inverse(lower: jax.Array) -> jax.Array:
+    """Inverse of a lower-triangular matrix by forward substitution, (n, n)."""
+    n = lower.shape[-1]
+    eye = jnp.eye(n, dtype=lower.dtype)
+    rows = []
+    for i in range(n):
+        acc = eye[i]
+        for j, r in enumerate(rows):
+            acc = acc - lower[i, j] * r
+        rows.append(acc / lower[i, i])
+    return jnp.stack(rows)

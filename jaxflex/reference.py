@@ -1,0 +1,161 @@
+"""Reference simulation: the full nonlinear model integrated by classical RK4 (the second method).
+
+Independent of the fast formulation (``jaxflex.linearized`` + ``jaxflex.simulate``): no
+linearization, no tables, no exponential integrator. The state is the independent elastic state
+[q_e, q_e'] with the motors prescribed by the rigid IGM of the desired trajectory; each RK4 stage calls
+the nonlinear inverse dynamic model ``jaxflex.model.inverse_dynamics`` (passive coordinates solved
+from the constraints in closed form, so the loop closes to round-off). The end-effector error uses
+the nonlinear forward map, e = X(q_a, q_e) - X(q_a, 0), its derivatives by forward-mode autodiff.
+
+RK4 is conditionally stable (|lambda h| < 2.78): the highest assumed mode of the default robot is
+about 18.6 kHz, so h must stay below about 2.4e-5 s, and its numerical damping of that mode is small
+only for h of a few microseconds (the default, 2e-6 s). It costs four nonlinear model evaluations per
+step: this is the accurate, slow path used to check the fast one, not for sweeps.
+
+Stage times t_k, t_k + h/2, t_k + h use right limits at t_k and left limits at t_k + h, so that with
+a step count that is a multiple of 8 the trapezoids' acceleration jumps (at multiples of tf/8) fall
+on step boundaries and are integrated exactly to the method's order.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxflex import model as mdl
+from jaxflex.path import Path
+from jaxflex.profiles import Profile, profile_eval
+from jaxflex.robot import Robot, joint_motion
+from jaxflex.simulate import Series
+from jaxflex.trajectory import task_from_arc
+
+
+def _joint_samples(robot: Robot, path: Path, profile: Profile, tf, eta, side):
+    """Motor angles, rates, accelerations (T, 2) each at normalized times eta (T,)."""
+    v = profile_eval(profile, jnp.asarray(eta), side)
+    s, ds, dds = v.s * path.length, v.ds * path.length / tf, v.dds * path.length / tf**2
+    x, xd, xdd, _ = task_from_arc(path, s, ds, dds, jnp.zeros_like(s))
+    return jax.vmap(lambda a, b, c: joint_motion(robot, a, b, c))(x, xd, xdd)
+
+
+def _error(robot: Robot, qa, qe, qad, qed, qadd, qedd):
+    """e, e', e'' (2,) each: X(q_a, q_e) - X(q_a, 0) and its time derivatives."""
+    x = lambda a, b: mdl.ee_position(robot, a, b) - mdl.ee_position(robot, a, jnp.zeros_like(b))
+    vel = lambda a, b: jax.jvp(x, (a, b), (qad, qed))[1]
+    e, ed = jax.jvp(x, (qa, qe), (qad, qed))
+    edd = jax.jvp(vel, (qa, qe), (qad, qed))[1] + jax.jvp(x, (qa, qe), (qadd, qedd))[1]
+    return e, ed, edd
+
+
+def _rk4(robot, h, x, stages):
+    """One RK4 step of the elastic state x = [q_e, q_e'] with motor motion at the three stage times.
+
+    Returns the new state and (q_e'', tau) at the start of the step (the first stage)."""
+    ne = x.shape[0] // 2
+    (qa0, qad0, qadd0), (qa1, qad1, qadd1), (qa2, qad2, qadd2) = stages
+
+    def f(xx, qa, qad, qadd):
+        qedd, tau = mdl.inverse_dynamics(robot, qa, xx[:ne], qad, xx[ne:], qadd)
+        return jnp.concatenate([xx[ne:], qedd]), tau
+
+    k1, tau = f(x, qa0, qad0, qadd0)
+    k2, _ = f(x + 0.5 * h * k1, qa1, qad1, qadd1)
+    k3, _ = f(x + 0.5 * h * k2, qa1, qad1, qadd1)
+    k4, _ = f(x + h * k3, qa2, qad2, qadd2)
+    return x + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4), (k1[ne:], tau)
+
+
+def _outputs(robot, qa, qad, qadd, x, qedd, tau):
+    ne = x.shape[0] // 2
+    e, ed, edd = _error(robot, qa, x[:ne], qad, x[ne:], qadd, qedd)
+    return jnp.stack([e, ed, edd, tau])
+
+
+def reference_rollout(robot: Robot, path: Path, profile: Profile | Sequence[Profile], tf: float,
+                      dwell: float = 0.1, dt: float = 1e-5, dwell_dt: float | None = None) -> Series:
+    """Full nonlinear simulation of trajectories (motion over [0, tf] [s] then a dwell [s]) by RK4.
+
+    ``profile`` is one motion law or a sequence of them; ``robot.payload`` may be a 1-D array of
+    payloads [kg]. The runs are vmapped (batching amortizes the per-operation overhead of the
+    nonlinear model, which dominates a single sequential run). dt [s] is rounded down so that the
+    motion has a multiple of 8 steps; the dwell uses dwell_dt (default dt). Returns a ``Series`` like
+    ``jaxflex.simulate.rollout`` with outputs at every step and leading axes (profile, payload) for
+    the batched inputs that were given, so ``jaxflex.metrics.metrics`` applies (vmapped).
+    """
+    tf, dwell, dt = float(tf), float(dwell), float(dt)
+    if not (tf > 0 and dwell > 0 and dt > 0):
+        raise ValueError(f"tf, dwell and dt must be > 0 s, got {tf}, {dwell}, {dt}")
+    if dt > 2e-5:
+        raise ValueError(f"RK4 reference step dt={dt} s is above its stability limit (~2.4e-5 s for "
+                         "the 18.6 kHz axial mode of the default robot); use dt <= 2e-5 s")
+    n = 8 * max(1, int(np.ceil(tf / dt / 8)))
+    nd = max(1, int(np.ceil(dwell / (dwell_dt or dt))))
+    single = isinstance(profile, Profile)
+    profiles = [profile] if single else list(profile)
+    tfa = jnp.asarray(tf)
+    k = np.arange(n)
+    samples = [tuple(_joint_samples(robot, path, p, tfa, eta, side)
+                     for eta, side in ((k / n, 1), ((k + 0.5) / n, 1), ((k + 1) / n, -1)))
+               for p in profiles]
+    samples = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *samples)
+    payload = jnp.asarray(robot.payload, dtype=float)
+    run = lambda m, smp: _reference(robot.replace(payload=m), smp, tfa, jnp.asarray(dwell), n, nd)
+    if payload.ndim == 0:
+        out = _batched(run, payload, samples, False)
+    else:
+        out = _batched(run, payload, samples, True)
+    return jax.tree_util.tree_map(lambda a: a[0], out) if single else out
+
+
+def _batched(run, payload, samples, over_payload):
+    per_profile = jax.vmap(run, in_axes=(None, 0))
+    if over_payload:
+        return jax.jit(jax.vmap(per_profile, in_axes=(0, None), out_axes=1))(payload, samples)
+    return jax.jit(per_profile)(payload, samples)
+
+
+def _reference(robot, samples, tf, dwell, n, nd):
+    h, hd = tf / n, dwell / nd
+    starts, mids, ends = samples
+    qa_pick = starts[0][0]
+    qe0 = mdl.static_equilibrium(robot, qa_pick)
+    x0 = jnp.concatenate([qe0, jnp.zeros_like(qe0)])
+
+    def step(x, inp):
+        st, md, en = inp
+        x_new, (qedd, tau) = _rk4(robot, h, x, (st, md, en))
+        return x_new, _outputs(robot, *st, x, qedd, tau)
+
+    x_tf, ys = jax.lax.scan(step, x0, (starts, mids, ends))
+    ne = qe0.shape[0]
+    end = tuple(a[-1] for a in ends)
+    qedd_end, tau_end = mdl.inverse_dynamics(robot, end[0], x_tf[:ne], end[1], x_tf[ne:], end[2])
+    ys = jnp.concatenate([ys, _outputs(robot, *end, x_tf, qedd_end, tau_end)[None]])
+
+    # dwell: motors hold the place pose
+    qa_place = end[0]
+    zero = jnp.zeros(2)
+    hold = (qa_place, zero, zero)
+
+    def dwell_step(x, _):
+        x_new, (qedd, tau) = _rk4(robot, hd, x, (hold, hold, hold))
+        return x_new, _outputs(robot, *hold, x, qedd, tau)
+
+    x_end, yd = jax.lax.scan(dwell_step, x_tf, None, length=nd)
+    qedd_e, tau_e = mdl.inverse_dynamics(robot, qa_place, x_end[:ne], zero, x_end[ne:], zero)
+    yd = jnp.concatenate([yd, _outputs(robot, *hold, x_end, qedd_e, tau_e)[None]])
+
+    q_star = mdl.static_equilibrium(robot, qa_place)
+    e_static = mdl.ee_position(robot, qa_place, q_star) - mdl.ee_position(robot, qa_place, jnp.zeros(ne))
+    v = lambda qe: mdl.potential(robot, mdl.full_coordinates(robot, qa_place, qe))
+    m_ee = mdl.reduced(robot, qa_place, x_tf[:ne], zero, x_tf[ne:]).mass[2:, 2:]
+    energy = 0.5 * x_tf[ne:] @ m_ee @ x_tf[ne:] + v(x_tf[:ne]) - v(q_star)
+    m_end = mdl.reduced(robot, qa_place, x_end[:ne], zero, x_end[ne:]).mass[2:, 2:]
+    energy_end = 0.5 * x_end[ne:] @ m_end @ x_end[ne:] + v(x_end[:ne]) - v(q_star)
+    return Series(t=jnp.arange(n + 1, dtype=float) * h, e=ys[:, 0], ed=ys[:, 1], edd=ys[:, 2], tau=ys[:, 3],
+                  t_dwell=tf + jnp.arange(nd + 1, dtype=float) * hd, e_dwell=yd[:, 0], ed_dwell=yd[:, 1],
+                  edd_dwell=yd[:, 2], tau_dwell=yd[:, 3], e_static=e_static, energy_tf=energy,
+                  energy_dwell=jnp.stack([energy, energy_end]),
+                  state_tf=x_tf, dt=h, dt_dwell=hd)
