@@ -64,11 +64,17 @@ def _poses(robot, cycle, d, e, n, blend):
     return table_poses(robot, path), path.length, path.breaks
 
 
-@jax.jit
+_coeffs_one = jax.jit(lambda robot, m, a, b, c: coeffs_at(robot.replace(payload=m), a, b, c))
+
+
 def _coeffs(robot, payloads, qa, qa1, qa2):
-    """Coefficients for every payload (C,) and blend: poses (B, K, 2) -> leaves (C, B, K, ...)."""
-    per_payload = lambda m: jax.vmap(lambda a, b, c: coeffs_at(robot.replace(payload=m), a, b, c))(qa, qa1, qa2)
-    return jax.vmap(per_payload)(payloads)
+    """Coefficients for every payload (C,) and blend: poses (B, K, 2) -> leaves (C, B, K, ...).
+
+    A host loop over (payload, blend) with one compiled function of the K nodes: larger vmapped
+    batches of the model's LAPACK solves have deadlocked the XLA CPU runtime (see jaxflex.linalg)."""
+    out = [[_coeffs_one(robot, m, qa[b], qa1[b], qa2[b]) for b in range(qa.shape[0])] for m in payloads]
+    return jax.tree_util.tree_map(lambda *a: jnp.stack(a).reshape((len(out), len(out[0])) + a[0].shape),
+                                  *[v for row in out for v in row])
 
 
 def _rollouts(values, breaks, lengths, tfs, dwell, profiles, grid, with_series):
