@@ -33,15 +33,18 @@ def _by_blend(res, metric, case):
             for i, b in enumerate(res.blends)}
 
 
-def dwell_spectrum(series, payload, robot, cycle, top: int = 3):
-    """Dominant frequencies [Hz] of e - e_static over the dwell, and the locked-motor natural
-    frequencies [Hz] at the place pose (what the residual vibration should ring at)."""
+def place_modes(robot, cycle, payload):
+    """Locked-motor natural frequencies [Hz] at the place pose (what the residual vibration should
+    ring at)."""
+    return np.asarray(modes_at_point(robot.replace(payload=payload), jnp.asarray(cycle.place)))
+
+
+def dwell_spectrum(series, top: int = 3):
+    """Dominant frequencies [Hz] of e - e_static over the dwell."""
     amp = np.asarray(series.e_dwell - series.e_static[None])
     fs = 1.0 / float(series.dt_dwell)
     f, p = spectral.welch(jnp.asarray(amp.T), fs, nperseg=amp.shape[0])
-    peaks = spectral.dominant_frequencies(f, np.asarray(p).sum(axis=0), top, fmin=5.0)
-    modes = np.asarray(modes_at_point(robot.replace(payload=payload), jnp.asarray(cycle.place)))
-    return np.asarray(peaks), modes
+    return np.asarray(spectral.dominant_frequencies(f, np.asarray(p).sum(axis=0), top, fmin=5.0))
 
 
 def compute(quick: bool = False) -> dict:
@@ -73,10 +76,11 @@ def compute(quick: bool = False) -> dict:
     import jax
 
     for k, case in enumerate(res.cases):
+        modes = place_modes(robot, cycle, case.payload)
         for i, b in enumerate(res.blends):
             for j, p in enumerate(res.profiles):
                 one = jax.tree_util.tree_map(lambda a: a[i, j, k], s)
-                peaks, modes = dwell_spectrum(one, case.payload, robot, cycle)
+                peaks = dwell_spectrum(one)
                 spectra[f"{case.payload:g}kg/{b}/{p}"] = {"peaks_hz": peaks, "locked_modes_hz": modes[:4]}
     out["dwell_spectra"] = spectra
     from jaxflex.path import make_path

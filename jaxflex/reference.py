@@ -83,6 +83,7 @@ def reference_rollout(robot: Robot, path: Path, profile: Profile | Sequence[Prof
     motion has a multiple of 8 steps; the dwell uses dwell_dt (default dt). Returns a ``Series`` like
     ``jaxflex.simulate.rollout`` with outputs at every step and leading axes (profile, payload) for
     the batched inputs that were given, so ``jaxflex.metrics.metrics`` applies (vmapped).
+    Each call compiles its program afresh (a slow, occasional cross-check; not cached).
     """
     tf, dwell, dt = float(tf), float(dwell), float(dt)
     if not (tf > 0 and dwell > 0 and dt > 0):
