@@ -10,14 +10,15 @@ from pathlib import Path
 
 import numpy as np
 
-from . import kinematics, modes, vibration
+from . import convergence, kinematics, modes, vibration
 from . import vibration as vibration_study
 from .io import provenance, table, write_json, write_text
 
 
-def run(out: str = "results", quick: bool = False, vibration: bool = False) -> dict:
-    """Run all sections; returns a dict of section results. ``vibration`` adds the Section 4
-    simulation study (opt-in while issue 4 is open)."""
+def run(out: str = "results", quick: bool = False, vibration: bool = True) -> dict:
+    """Run all sections; returns a dict of section results. ``vibration`` (default on) runs the
+    Section 4 simulation study; without ``quick`` it is followed by the step-convergence study and
+    the cross-check against the full nonlinear model (a few minutes)."""
     with_vibration = vibration
     started = time.time()
     out = Path(out)
@@ -58,6 +59,12 @@ def run(out: str = "results", quick: bool = False, vibration: bool = False) -> d
         results["vibration"] = vib
         write_json(out / "vibration.json", vib)
         sections.append(_vibration_section(vib, fig_dir, out))
+        if not quick:
+            print("== step convergence and full-model cross-check", flush=True)
+            conv = {"dt": convergence.dt_study(), "reference": convergence.reference_study()}
+            results["convergence"] = conv
+            write_json(out / "convergence.json", conv)
+            sections.append(_convergence_section(conv))
 
     prov = provenance({"out": str(out), "quick": quick}, started)
     header = ["# jaxflex reproduction report", "",
@@ -156,13 +163,13 @@ def _vibration_section(vib: dict, fig_dir: Path, out: Path) -> str:
         f"compile {vib['timing']['compile_s']:.1f} s, run {vib['timing']['run_s'] * 1e3:.0f} ms. "
         "Gravity +y (paper: upwards), no damping (as the paper).", "",
         "### Table 7: 6 kg, tf = 0.43 s, along the motion", "",
-        *[cmp(c0, paper_data.TABLE7[m], m) + "\n" for m in ("max_torque_nm", "rms_acc_error", "max_deflection_mm")],
+        *[cmp(c0[m], paper_data.TABLE7[m], m) + "\n" for m in ("max_torque_nm", "rms_acc_error", "max_deflection_mm")],
         "### Table 8: 6 kg, tf = 0.43 s, residual errors at tf", "",
-        *[cmp(c0, paper_data.TABLE8[m], m) + "\n" for m in ("residual_pos_mm", "residual_vel", "residual_acc")],
+        *[cmp(c0[m], paper_data.TABLE8[m], m) + "\n" for m in ("residual_pos_mm", "residual_vel", "residual_acc")],
         "### Table 9: 0.1 kg, tf = 0.3 s, along the motion", "",
-        *[cmp(c1, paper_data.TABLE9[m], m) + "\n" for m in ("max_torque_nm", "rms_acc_error", "max_deflection_mm")],
+        *[cmp(c1[m], paper_data.TABLE9[m], m) + "\n" for m in ("max_torque_nm", "rms_acc_error", "max_deflection_mm")],
         "### Table 10: 0.1 kg, tf = 0.3 s, residual errors at tf", "",
-        *[cmp(c1, paper_data.TABLE10[m], m) + "\n" for m in ("residual_pos_mm", "residual_vel", "residual_acc")],
+        *[cmp(c1[m], paper_data.TABLE10[m], m) + "\n" for m in ("residual_pos_mm", "residual_vel", "residual_acc")],
         "### Table 11: short vs extended blends (residuals at tf)", "",
         "The paper states neither payload nor tf for Table 11; shown for the 6 kg / 0.43 s case. "
         "Extended: d = 25 mm, Lamé e = 44.5 mm (fits the paper's 59.307 mm length), clothoid e = 44 mm; "
@@ -196,3 +203,25 @@ def _vibration_section(vib: dict, fig_dir: Path, out: Path) -> str:
         "  The clothoid and polar columns of Table 8 (6 kg) are identical to Table 10's (0.1 kg) for "
         "position and velocity, which two different payloads and motion times cannot produce.", ""]
     return "\n".join(text)
+
+
+def _convergence_section(conv: dict) -> str:
+    return "\n".join([
+        "## 4. Step convergence and the full nonlinear model", "",
+        "### dt convergence (SPEC 5)", "", convergence.dt_markdown(conv["dt"]), "",
+        "### Fast formulation vs the full nonlinear model", "",
+        "The sweeps use the fast formulation (SPEC 4): the equations linearized in the small elastic "
+        "coordinates about the rigid motion, coefficients tabulated along the path, exact exponential "
+        "propagation over short frozen intervals. The reference is the full nonlinear model "
+        "(`jaxflex.model.inverse_dynamics`) integrated by RK4.", "",
+        convergence.reference_markdown(conv["reference"]), "",
+        "Reading the table: the grid and the coefficient tables of the fast model are converged (see "
+        "above, and doubling the table nodes changes no metric by more than 0.1 %), and the RK4 "
+        "reference gives the same metrics at 10 us and 5 us (< 0.01 %, except `residual_acc`). The "
+        "remaining difference is the linearization itself: about 0.1-0.4 % on torques, deflections and "
+        "RMS errors, more on the residuals, which are small differences of large terms (for trap_1_4 the "
+        "dwell residual is 4 % of the peak deflection, so a 0.1 % error of the forcing becomes a few "
+        "percent of the residual). `residual_acc` is dominated by the 18 kHz axial mode, which RK4 "
+        "damps numerically at any affordable step while the exponential propagator keeps it: there the "
+        "two methods measure different things (SPEC 5). Design claims in the optimization study are "
+        "re-checked with the full model.", ""])

@@ -129,10 +129,9 @@ def _polar_coef(d, e):
 
     a0, a1, a2 = rows(-f)
     b0, b1, b2 = rows(f)
-    mat = jnp.asarray(np.stack([a0, b0, a1, b1, a2, b2]))
+    inverse = jnp.asarray(np.linalg.inv(np.stack([a0, b0, a1, b1, a2, b2])))   # constant, host numpy
     zero = jnp.zeros_like(d)
-    rhs = jnp.stack([e, d, zero, zero, e, d])
-    return jnp.linalg.solve(mat, rhs)
+    return inverse @ jnp.stack([e, d, zero, zero, e, d])
 
 
 def _polar_point(coef, e, p):

@@ -64,11 +64,11 @@ def build_parser() -> argparse.ArgumentParser:
                                    "PNG figures in DIR.")
     p.add_argument("--out", metavar="DIR", default="results",
                    help="output directory (default: %(default)s)")
-    p.add_argument("--vibration", action="store_true",
-                   help="also run the vibration study (Tables 7-11, Fig. 12; work in progress, see "
-                        "issue 4 notes: an intermittent XLA CPU deadlock is not fully resolved)")
+    p.add_argument("--no-vibration", dest="vibration", action="store_false",
+                   help="skip the vibration study (Tables 7-11, Fig. 12, convergence checks)")
     p.add_argument("--quick", action="store_true",
-                   help="coarser grids and fewer points: a fast smoke run (not for publication)")
+                   help="coarser grids and fewer points, no convergence or full-model checks: a fast "
+                        "smoke run (not for publication)")
     return parser
 
 

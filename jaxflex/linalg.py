@@ -4,9 +4,11 @@ Used by the batched fast rollouts (``jaxflex.simulate``), where tiny (12 x 12) m
 thousands of times inside one vmapped, jitted program. jaxlib's CPU LAPACK kernels (``getrf`` behind ``jnp.linalg.solve``
 and ``inv``) deadlock intermittently when XLA runs several of them concurrently in a large batched
 program (observed with jax 0.10.2 on 2 cores: the process waits forever with all threads idle; the
-same class as jax-ml/jax#24219). The model functions (``jaxflex.model``) keep LAPACK: their programs
-are smaller and compile faster with it, and no hang was observed there. These unrolled eliminations are plain arithmetic, so they fuse, batch
-and differentiate like any other jnp code and cannot hit that bug.
+same class as jax-ml/jax#24219; neither ``--xla_cpu_multi_thread_eigen=false`` nor synchronous dispatch
+avoids it). The whole package therefore avoids LAPACK solves: the model (``jaxflex.model``) uses
+``spd_solve`` for its mass matrices and ``solve`` for the static Newton step. These eliminations are
+plain arithmetic, so they fuse, batch and differentiate like any other jnp code and cannot hit that
+bug. Only ``jnp.linalg.eigh`` remains (modal analysis, never batched inside the rollouts).
 """
 from __future__ import annotations
 
@@ -81,3 +83,27 @@ def lower_inverse(lower: jax.Array) -> jax.Array:
             acc = acc - lower[i, j] * r
         rows.append(acc / lower[i, i])
     return jnp.stack(rows)
+
+
+def spd_solve(a: jax.Array, b: jax.Array) -> jax.Array:
+    """Solve a x = b for a small symmetric positive definite a (n, n); b (n,) or (n, k).
+
+    Unrolled Cholesky factorization and forward/backward substitution (2 n steps, no pivoting needed
+    for SPD matrices); only the lower triangle of a is read."""
+    n = a.shape[-1]
+    if a.shape != (n, n) or b.shape[0] != n:
+        raise ValueError(f"spd_solve: shapes {a.shape} and {b.shape} do not match")
+    lower = cholesky(a)
+    ys = []
+    for i in range(n):
+        acc = b[i]
+        for j, y in enumerate(ys):
+            acc = acc - lower[i, j] * y
+        ys.append(acc / lower[i, i])
+    xs = [None] * n
+    for i in reversed(range(n)):
+        acc = ys[i]
+        for j in range(i + 1, n):
+            acc = acc - lower[j, i] * xs[j]
+        xs[i] = acc / lower[i, i]
+    return jnp.stack(xs)

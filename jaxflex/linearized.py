@@ -30,7 +30,7 @@ from jaxflex import model as mdl
 from jaxflex.path import Path, path_frame
 from jaxflex.robot import Robot, joint_motion
 
-SEGMENT_NODES = (6, 24, 48, 24, 6)   # nodes per path segment (line, blend, traverse, blend, line)
+SEGMENT_NODES = (12, 48, 96, 48, 12)  # nodes per path segment (line, blend, traverse, blend, line)
 
 
 class Coeffs(NamedTuple):

@@ -33,6 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxflex import linalg
 from jaxflex.beams import beam_modes
 from jaxflex.robot import Robot, check_reachable, circle_intersection, igm
 
@@ -224,14 +225,21 @@ def ee_position(robot: Robot, qa, qe) -> jax.Array:
 
 
 def velocity_map(robot: Robot, q) -> jax.Array:
-    """W (N, 2 + ne): q' = W [q_a', q_e'] with q_p' = -A^-1 (C q_a' + B q_e')."""
-    return _velocity_map(robot, *constraint_jacobians(robot, q))
+    """W (N, 2 + ne): q' = W [q_a', q_e'] at the full coordinates q (N,).
 
-
-def _velocity_map(robot, a, b, c):
+    The passive rows are the Jacobian of the closed-form loop closure ``passive``, which equals
+    -A^-1 [C B] of Eq. 19 (implicit function theorem) without a linear solve."""
     lay = layout(robot)
-    wp = -jnp.linalg.solve(a, jnp.concatenate([c, b], axis=1))
-    return jnp.concatenate([jnp.eye(2 + lay.ne), wp], axis=0)
+    return _velocity_map(robot, jnp.concatenate([q[lay.a], q[lay.e]]))
+
+
+def _passive_of(robot):
+    return lambda qi: passive(robot, qi[:2], qi[2:])
+
+
+def _velocity_map(robot, qi):
+    wp = jax.jacfwd(_passive_of(robot))(qi)
+    return jnp.concatenate([jnp.eye(qi.shape[0]), wp], axis=0)
 
 
 class Reduced(NamedTuple):
@@ -253,14 +261,15 @@ def reduced(robot: Robot, qa, qe, qad, qed) -> Reduced:
     """Reduced mass matrix and force vector at the state (q_a, q_e, q_a', q_e')."""
     lay = layout(robot)
     q = full_coordinates(robot, qa, qe)
-    a, b, c = constraint_jacobians(robot, q)
-    wm = _velocity_map(robot, a, b, c)
+    qi = jnp.concatenate([qa, qe])
     qid = jnp.concatenate([qad, qed])
+    wm = _velocity_map(robot, qi)
     qd = wm @ qid
-    # constraint acceleration term: A q_p'' + [C B] q_i'' + gamma = 0, gamma = f_qq[q', q']
-    fdot = lambda qq: jax.jvp(lambda x: constraints(robot, x), (qq,), (qd,))[1]
-    gamma = jax.jvp(fdot, (q,), (qd,))[1]
-    w_acc = jnp.zeros(lay.n).at[lay.p].set(-jnp.linalg.solve(a, gamma))
+    # acceleration term: q_p'' = W_p q_i'' + w_p with w_p the second directional derivative of the
+    # closed-form q_p(q_i) along q_i' (equals -A^-1 gamma, gamma = f_qq[q', q'], without a solve)
+    pas = _passive_of(robot)
+    pdot = lambda x: jax.jvp(pas, (x,), (qid,))[1]
+    w_acc = jnp.zeros(lay.n).at[lay.p].set(jax.jvp(pdot, (qi,), (qid,))[1])
     mq = mass_matrix(robot, q)
     mdot_qd = jax.jvp(lambda qq: mass_matrix(robot, qq) @ qd, (q,), (qd,))[1]
     dtdq = jax.grad(lambda qq: 0.5 * qd @ mass_matrix(robot, qq) @ qd)(q)
@@ -274,7 +283,7 @@ def direct_dynamics(robot: Robot, qa, qe, qad, qed, tau):
     """Direct dynamic model: motor torques tau (2,) [N m] -> (q_a'' (2,), q_e'' (ne,))."""
     red = reduced(robot, qa, qe, qad, qed)
     rhs = jnp.concatenate([tau, jnp.zeros_like(qe)]) - red.force
-    acc = jnp.linalg.solve(red.mass, rhs)
+    acc = linalg.spd_solve(red.mass, rhs)
     return acc[:2], acc[2:]
 
 
@@ -282,7 +291,7 @@ def inverse_dynamics(robot: Robot, qa, qe, qad, qed, qadd):
     """Inverse dynamic model (perfect controller): prescribed q_a'' (2,) -> (q_e'' (ne,), tau (2,))."""
     red = reduced(robot, qa, qe, qad, qed)
     m, f = red.mass, red.force
-    qedd = jnp.linalg.solve(m[2:, 2:], -f[2:] - m[2:, :2] @ qadd)
+    qedd = linalg.spd_solve(m[2:, 2:], -f[2:] - m[2:, :2] @ qadd)
     tau = m[:2, :2] @ qadd + m[:2, 2:] @ qedd + f[:2]
     return qedd, tau
 
@@ -308,7 +317,7 @@ def static_equilibrium(robot: Robot, qa, external=None, iterations: int = 8) -> 
     def step(qe, _):
         r = elastic_force(robot, qa, qe, external)
         k = jax.jacfwd(lambda x: elastic_force(robot, qa, x, external))(qe)
-        return qe - jnp.linalg.solve(k, r), None
+        return qe - linalg.solve(k, r), None
 
     qe, _ = jax.lax.scan(step, jnp.zeros(lay.ne), None, length=iterations)
     return qe
@@ -326,8 +335,7 @@ def locked_modes(robot: Robot, qa):
     qe = static_equilibrium(robot, qa)
     k = locked_stiffness(robot, qa, qe)
     m = reduced(robot, qa, qe, jnp.zeros(2), jnp.zeros_like(qe)).mass[2:, 2:]
-    lower = jnp.linalg.cholesky(m)
-    inv = jax.scipy.linalg.solve_triangular(lower, jnp.eye(m.shape[0]), lower=True)
+    inv = linalg.lower_inverse(linalg.cholesky(m))
     lam, vec = jnp.linalg.eigh(inv @ k @ inv.T)
     shapes = inv.T @ vec
     return jnp.sqrt(jnp.maximum(lam, 0.0)) / (2.0 * jnp.pi), shapes

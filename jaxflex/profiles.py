@@ -8,6 +8,9 @@ normalized time eta. Families:
 - ``trapezoid``: trapezoidal velocity with acceleration time ``ta`` (fraction of tf, 0 < ta <= 1/2) and
   cruise speed 1 / (1 - ta). ``bang_bang`` is ta = 1/2 (2 eta^2, then 1 - 2 (1 - eta)^2),
   ``trap_1_4`` is ta = 1/4 and ``trap_1_8`` ta = 1/8.
+- ``impulses`` (input shaping, ``input_shaped``): a paper law compressed to [0, 1 - tau_K] and
+  convolved with impulses A_k at tau_k: S(eta) = sum_k A_k S0((eta - tau_k) / (1 - tau_K)). ZV and ZVD
+  shapers (``zv``, ``zvd``) cancel the residual vibration of one undamped mode at equal total time.
 - ``shaped`` (the parametric family for optimization): velocity
   S'(eta) = eta^r (1 - eta)^r g(eta)^2 / Z, g a Bernstein polynomial with free coefficients ``coef``
   and Z the normalization making S(1) = 1. Monotone, with S(0) = 0, S(1) = 1 and zero velocity and
@@ -47,11 +50,14 @@ class Profile:
     """A motion law.
 
     Attributes:
-        kind: ``"poly7"``, ``"trapezoid"`` or ``"shaped"`` (static).
+        kind: ``"poly7"``, ``"trapezoid"``, ``"shaped"`` or ``"impulses"`` (static).
         ta: acceleration time as a fraction of tf (trapezoid only).
-        coef: Bernstein coefficients of g (shaped only; shape (m + 1,)).
+        coef: Bernstein coefficients of g (shaped; shape (m + 1,)) or impulse amplitudes (impulses;
+            (K,), summing to 1).
         order: exponent r of the end factor eta^r (1 - eta)^r (shaped only; static, 2 or 3).
         name: display name (static).
+        times: impulse times as fractions of tf, (K,) ascending from 0 (impulses only).
+        base: name of the paper law that the impulses convolve (impulses only; static).
     """
 
     ta: jax.Array
@@ -59,6 +65,8 @@ class Profile:
     kind: str = dataclasses.field(metadata=dict(static=True), default="poly7")
     order: int = dataclasses.field(metadata=dict(static=True), default=3)
     name: str = dataclasses.field(metadata=dict(static=True), default="poly7")
+    times: jax.Array | None = None
+    base: str = dataclasses.field(metadata=dict(static=True), default="")
 
 
 def make_profile(name: str) -> Profile:
@@ -87,6 +95,47 @@ def shaped(coef, order: int = 3, name: str = "shaped") -> Profile:
     if order not in (2, 3):
         raise ValueError(f"shaped profile order must be 2 or 3, got {order}")
     return Profile(ta=jnp.asarray(0.0), coef=coef, kind="shaped", order=order, name=name)
+
+
+def input_shaped(base: str, amplitudes, times, name: str | None = None) -> Profile:
+    """Paper law ``base`` convolved with impulses (amplitudes (K,) summing to 1, times (K,) as
+    fractions of the total time, ascending from 0 and < 1); the total motion time is unchanged."""
+    make_profile(base)
+    amps, ts = jnp.asarray(amplitudes, dtype=float), jnp.asarray(times, dtype=float)
+    if amps.ndim != 1 or amps.shape != ts.shape:
+        raise ValueError("impulse amplitudes and times must be 1-D arrays of equal length")
+    if not isinstance(ts, jax.core.Tracer):
+        t, a = np.asarray(ts), np.asarray(amps)
+        if t[0] != 0.0 or np.any(np.diff(t) < 0) or not t[-1] < 1.0:
+            raise ValueError(f"impulse times must ascend from 0 and stay below 1 (fractions of tf), got {t}")
+        if abs(a.sum() - 1.0) > 1e-12:
+            raise ValueError(f"impulse amplitudes must sum to 1, got {a.sum()}")
+    return Profile(ta=jnp.asarray(0.0), coef=amps, kind="impulses", name=name or f"{base}+shaper",
+                   times=ts, base=base)
+
+
+def zv(base: str, freq_hz: float, tf: float) -> Profile:
+    """ZV shaper (two impulses 1/2, half a period apart) for an undamped mode at freq_hz [Hz]."""
+    half = 0.5 / float(freq_hz) / float(tf)
+    return input_shaped(base, [0.5, 0.5], [0.0, half], name=f"{base}+ZV")
+
+
+def zvd(base: str, freq_hz: float, tf: float) -> Profile:
+    """ZVD shaper (1/4, 1/2, 1/4 at 0, T/2, T) for an undamped mode at freq_hz [Hz]: robust to
+    frequency errors (zero derivative of the residual w.r.t. frequency)."""
+    half = 0.5 / float(freq_hz) / float(tf)
+    return input_shaped(base, [0.25, 0.5, 0.25], [0.0, half, 2 * half], name=f"{base}+ZVD")
+
+
+def _impulses(profile: Profile, eta, side):
+    base = make_profile(profile.base)
+    span = 1.0 - profile.times[-1]
+    raw = (eta[..., None] - profile.times) / span                     # (..., K)
+    inside = (raw >= 0.0) & (raw < 1.0) if side > 0 else (raw > 0.0) & (raw <= 1.0)
+    v = profile_eval(base, jnp.clip(raw, 0.0, 1.0), side)
+    a = profile.coef
+    return LawValues(v.s @ a, jnp.where(inside, v.ds, 0.0) @ a / span,
+                     jnp.where(inside, v.dds, 0.0) @ a / span**2, jnp.where(inside, v.ddds, 0.0) @ a / span**3)
 
 
 # ----------------------------------------------------------------------------------------------
@@ -156,6 +205,8 @@ def profile_eval(profile: Profile, eta, side: int = 1) -> LawValues:
         return _trapezoid(profile.ta, eta, side)
     if profile.kind == "shaped":
         return _shaped(profile.coef, profile.order, eta)
+    if profile.kind == "impulses":
+        return _impulses(profile, eta, side)
     raise ValueError(f"unknown profile kind {profile.kind!r}")
 
 

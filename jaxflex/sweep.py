@@ -64,17 +64,11 @@ def _poses(robot, cycle, d, e, n, blend):
     return table_poses(robot, path), path.length, path.breaks
 
 
-_coeffs_one = jax.jit(lambda robot, m, a, b, c: coeffs_at(robot.replace(payload=m), a, b, c))
-
-
+@jax.jit
 def _coeffs(robot, payloads, qa, qa1, qa2):
-    """Coefficients for every payload (C,) and blend: poses (B, K, 2) -> leaves (C, B, K, ...).
-
-    A host loop over (payload, blend) with one compiled function of the K nodes: larger vmapped
-    batches of the model's LAPACK solves have deadlocked the XLA CPU runtime (see jaxflex.linalg)."""
-    out = [[_coeffs_one(robot, m, qa[b], qa1[b], qa2[b]) for b in range(qa.shape[0])] for m in payloads]
-    return jax.tree_util.tree_map(lambda *a: jnp.stack(a).reshape((len(out), len(out[0])) + a[0].shape),
-                                  *[v for row in out for v in row])
+    """Coefficients for every payload (C,) and blend: poses (B, K, 2) -> leaves (C, B, K, ...)."""
+    per_blend = jax.vmap(coeffs_at, in_axes=(None, 0, 0, 0))
+    return jax.vmap(lambda m: per_blend(robot.replace(payload=m), qa, qa1, qa2))(payloads)
 
 
 def _rollouts(values, breaks, lengths, tfs, dwell, profiles, grid, with_series):

@@ -77,9 +77,16 @@ def test_closed_form_passive_solves_constraints_and_w_matches_autodiff(robot6, p
     assert float(jnp.max(jnp.abs(mdl.constraints(robot6, q)))) < 1e-15
     a, b, c = mdl.constraint_jacobians(robot6, q)
     assert a.shape == (8, 8) and b.shape == (8, 12) and c.shape == (8, 2)
+    # W and w come from derivatives of the closed-form q_p(q_i); check them against the constraint
+    # Jacobians of Eq. 19 (an independent route): A W_p + [C B] = 0 and A w_p + f_qq[q', q'] = 0.
     w = mdl.velocity_map(robot6, q)
-    jac = jax.jacfwd(lambda qi: mdl.passive(robot6, qi[:2], qi[2:]))(jnp.concatenate([pose, qe]))
-    np.testing.assert_allclose(w[14:], jac, atol=1e-12)
+    np.testing.assert_allclose(a @ w[14:], -jnp.concatenate([c, b], axis=1), atol=1e-12)
+    np.testing.assert_allclose(w[:14], np.eye(14), atol=0)
+    qad, qed = jnp.array([0.7, -1.1]), jnp.asarray(rng.normal(scale=1e-2, size=12))
+    red = mdl.reduced(robot6, pose, qe, qad, qed)
+    fdot = lambda qq: jax.jvp(lambda x: mdl.constraints(robot6, x), (qq,), (red.qd,))[1]
+    gamma = jax.jvp(fdot, (q,), (red.qd,))[1]
+    np.testing.assert_allclose(a @ red.w_acc[14:], -gamma, atol=1e-12 * float(jnp.max(jnp.abs(gamma))))
 
 
 def test_mass_matrix_symmetric_positive(robot6, pose):

@@ -1,0 +1,84 @@
+"""Step convergence of the fast rollouts and the cross-check against the full nonlinear model.
+
+- ``dt_study``: all 24 paper runs at the default grid and with every step quartered (frozen
+  intervals, fine steps and dwell steps), the relative change of every metric (SPEC 5: < 1 %, values
+  at the single instant tf < 2 %).
+- ``reference_study``: the fast formulation against the full nonlinear model integrated by RK4
+  (``jaxflex.reference``), Lamé path, 6 kg, tf = 0.43 s, four motion laws.
+"""
+from __future__ import annotations
+
+import time
+
+import jax
+import numpy as np
+
+from jaxflex.metrics import METRICS, metrics
+from jaxflex.path import make_path
+from jaxflex.profiles import make_profile
+from jaxflex.reference import reference_rollout
+from jaxflex.robot import cycle_preset, robot_preset
+from jaxflex.sweep import PAPER_CASES, Case, default_grid, run_sweep
+
+from .io import table
+
+INSTANT = ("residual_pos_mm", "residual_vel", "residual_acc", "residual_energy")
+
+
+def _changes(a: np.ndarray, b: np.ndarray):
+    rel = np.abs(a / b - 1.0)
+    return float(np.max(rel)), np.unravel_index(int(np.argmax(rel)), rel.shape)
+
+
+def dt_study(dwell: float = 0.1) -> dict:
+    """Metrics of the 24 runs at the default grid and at a quarter of every step."""
+    robot, cycle = robot_preset("default"), cycle_preset()
+    base = default_grid(robot, [c.tf for c in PAPER_CASES], dwell)
+    fine = base._replace(coarse=4 * base.coarse, dwell_steps=4 * base.dwell_steps)
+    out = {"grids": {"base": base._asdict(), "quarter": fine._asdict()}, "rows": []}
+    runs = {}
+    for label, grid in (("base", base), ("quarter", fine)):
+        print(f"  dt study: grid {label} {tuple(grid)[:3]}", flush=True)
+        runs[label] = run_sweep(robot, cycle, PAPER_CASES, grid=grid, dwell=dwell)
+    res = runs["base"]
+    for m in METRICS:
+        worst, (b, p, c) = _changes(runs["base"].metrics[m], runs["quarter"].metrics[m])
+        limit = 0.02 if m in INSTANT else 0.01
+        out["rows"].append({"metric": m, "max_rel_change": worst, "limit": limit,
+                            "worst_run": f"{res.blends[b]}/{res.profiles[p]}/{res.cases[c].payload:g} kg"})
+    return out
+
+
+def dt_markdown(study: dict) -> str:
+    g0, g1 = study["grids"]["base"], study["grids"]["quarter"]
+    rows = [[r["metric"], f"{100 * r['max_rel_change']:.3f}", f"{100 * r['limit']:.0f}", r["worst_run"],
+             "yes" if r["max_rel_change"] < r["limit"] else "NO"] for r in study["rows"]]
+    head = (f"Default grid: {g0['coarse']} frozen intervals x {g0['fine']} steps over tf, "
+            f"{g0['dwell_steps']} dwell steps; quartered: {g1['coarse']} x {g1['fine']}, "
+            f"{g1['dwell_steps']}. Largest relative change over the 24 runs:")
+    return head + "\n\n" + table(["metric", "max change [%]", "limit [%]", "worst run", "within"], rows)
+
+
+def reference_study(dt: float = 1e-5, payload: float = 6.0, tf: float = 0.43, dwell: float = 0.1) -> dict:
+    """Fast formulation vs full nonlinear model + RK4 (Lamé, four laws)."""
+    robot, cycle = robot_preset("default"), cycle_preset()
+    fast = run_sweep(robot, cycle, [Case(payload, tf)], blends=("lame",), dwell=dwell)
+    profiles = [make_profile(p) for p in fast.profiles]
+    print(f"  full nonlinear model, RK4 at dt = {dt:g} s ({len(profiles)} laws, a few minutes) ...", flush=True)
+    t0 = time.perf_counter()
+    ref = jax.vmap(metrics)(reference_rollout(robot.replace(payload=payload), make_path(cycle, "lame", 0.025),
+                                              profiles, tf, dwell, dt=dt))
+    elapsed = time.perf_counter() - t0
+    rows = {m: {"fast": fast.metrics[m][0, :, 0].tolist(), "full": np.asarray(ref[m]).tolist()} for m in METRICS}
+    return {"payload": payload, "tf": tf, "dt": dt, "profiles": list(fast.profiles), "metrics": rows,
+            "reference_s": elapsed}
+
+
+def reference_markdown(study: dict) -> str:
+    rows = []
+    for m, v in study["metrics"].items():
+        rel = [100 * (a / b - 1) for a, b in zip(v["fast"], v["full"])]
+        rows.append([m] + [f"{x:+.2f}" for x in rel])
+    return (f"Fast minus full, relative [%], {study['payload']:g} kg, tf = {study['tf']:g} s, Lamé; full model "
+            f"by RK4 at {study['dt'] * 1e6:g} us ({study['reference_s']:.0f} s):\n\n"
+            + table(["metric"] + study["profiles"], rows))

@@ -1,0 +1,116 @@
+"""Design-level rollouts: blend parameters and motion-law coefficients -> Series and metrics.
+
+A *design* is a point of the optimization space of SPEC 6: the blend parameters (d, e [m], Lamé
+order n) of a blend family and the coefficients of a shaped monotone motion law
+(``jaxflex.profiles.shaped``). ``design_rollout`` is a pure, differentiable function of the design
+(the linearization tables are rebuilt from the path it defines), so ``jax.grad`` and ``jax.vmap``
+apply directly. ``sweep_designs`` evaluates thousands of designs in fixed-size chunks (one
+compilation, bounded memory) and shards each chunk over all local devices with ``jax.sharding``;
+on CPU, ``XLA_FLAGS=--xla_force_host_platform_device_count=2`` exposes two devices.
+"""
+from __future__ import annotations
+
+import functools
+import time
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import NamedSharding, PartitionSpec
+
+from jaxflex.linearized import build_tables
+from jaxflex.metrics import metrics
+from jaxflex.path import Cycle, make_path
+from jaxflex.profiles import shaped
+from jaxflex.robot import Robot
+from jaxflex.simulate import Grid, Series, check_grid, motion_samples, rollout
+
+
+class Design(NamedTuple):
+    """Blend parameters d, e [m] and Lamé order n (scalars, or (D,) for a batch) and the shaped
+    motion-law coefficients coef ((m + 1,), or (D, m + 1))."""
+
+    d: jax.Array
+    e: jax.Array
+    n: jax.Array
+    coef: jax.Array
+
+
+def design(d=0.025, e=None, n=3.0, coef=(1.0, 1.0, 1.0, 1.0)) -> Design:
+    """A single design as float64 arrays (e defaults to d)."""
+    e = d if e is None else e
+    return Design(*(jnp.asarray(v, dtype=float) for v in (d, e, n, coef)))
+
+
+def design_rollout(robot: Robot, cycle: Cycle, x: Design, tf, dwell, grid: Grid, *, blend: str = "lame",
+                   order: int = 3) -> Series:
+    """Rollout of one design (motion over [0, tf] [s], then a dwell [s]); differentiable in x, robot
+    (payload, stiffness, ...) and tf. Validate concrete inputs with ``make_path`` before tracing."""
+    path = make_path(cycle, blend, x.d, x.e, x.n)
+    tables = build_tables(robot, path)
+    samples = motion_samples(path.length, shaped(x.coef, order), tf, grid)
+    return rollout(tables, samples, tf, dwell, grid)
+
+
+@functools.partial(jax.jit, static_argnames=("grid", "blend", "order"))
+def _metrics_batch(robot, cycle, xs, tf, dwell, grid, blend, order):
+    one = lambda x: metrics(design_rollout(robot, cycle, x, tf, dwell, grid, blend=blend, order=order))
+    return jax.vmap(one)(xs)
+
+
+class DesignSweep(NamedTuple):
+    """Metrics dict name -> (D,) arrays, the number of devices used, chunk size and timing [s]."""
+
+    metrics: dict
+    devices: int
+    chunk: int
+    compile_s: float
+    run_s: float
+
+
+def sweep_designs(robot: Robot, cycle: Cycle, xs: Design, *, tf: float, dwell: float, grid: Grid,
+                  blend: str = "lame", order: int = 3, chunk: int | None = None, devices=None,
+                  progress: bool = False) -> DesignSweep:
+    """Metrics of a batch of D designs (leaves with a leading axis D).
+
+    The batch is cut into chunks of ``chunk`` designs (default 4 per device; the last chunk is padded
+    by repeating its final design and the padding dropped), each chunk sharded over ``devices``
+    (default: all local devices) along a one-dimensional mesh axis ``"design"``. One compilation
+    serves every chunk. Raises ValueError on inconsistent shapes and FloatingPointError naming the
+    first design with a non-finite metric."""
+    check_grid(grid)
+    leaves = [jnp.asarray(v, dtype=float) for v in xs]
+    size = leaves[0].shape[0] if leaves[0].ndim else 0
+    if size == 0 or any(v.shape[:1] != (size,) for v in leaves):
+        raise ValueError(f"designs need a common leading batch axis, got shapes {[v.shape for v in leaves]}")
+    devices = list(jax.local_devices() if devices is None else devices)
+    chunk = chunk or 4 * len(devices)
+    if chunk % len(devices):
+        raise ValueError(f"chunk {chunk} is not a multiple of the {len(devices)} devices")
+    mesh = jax.sharding.Mesh(np.asarray(devices), ("design",))
+    shard = NamedSharding(mesh, PartitionSpec("design"))
+    pad = -size % chunk
+    padded = Design(*(jnp.concatenate([v, jnp.repeat(v[-1:], pad, axis=0)]) for v in leaves))
+    scalars = (jnp.asarray(tf, dtype=float), jnp.asarray(dwell, dtype=float))
+    parts = [jax.tree_util.tree_map(lambda v: v[i:i + chunk], padded) for i in range(0, size + pad, chunk)]
+    t0 = time.perf_counter()
+    compiled = _metrics_batch.lower(robot, cycle, jax.device_put(parts[0], shard), *scalars, grid=grid,
+                                    blend=blend, order=order).compile()
+    compile_s = time.perf_counter() - t0
+    out, t0 = [], time.perf_counter()
+    for i, part in enumerate(parts):
+        res = compiled(robot, cycle, jax.device_put(part, shard), *scalars)
+        out.append({k: np.asarray(v) for k, v in res.items()})
+        if progress:
+            print(f"  designs {min((i + 1) * chunk, size)}/{size}", flush=True)
+    run_s = time.perf_counter() - t0
+    mets = {k: np.concatenate([o[k] for o in out])[:size] for k in out[0]}
+    for name, v in mets.items():
+        bad = np.flatnonzero(~np.isfinite(v))
+        if bad.size:
+            i = int(bad[0])
+            raise FloatingPointError(f"non-finite {name} for design {i}: d={float(leaves[0][i]):g} m, "
+                                     f"e={float(leaves[1][i]):g} m, n={float(leaves[2][i]):g}, "
+                                     f"coef={np.asarray(leaves[3][i]).tolist()}")
+    return DesignSweep(mets, len(devices), chunk, compile_s, run_s)
