@@ -130,7 +130,7 @@ def zvd(base: str, freq_hz: float, tf: float) -> Profile:
 def _impulses(profile: Profile, eta, side):
     base = make_profile(profile.base)
     span = 1.0 - profile.times[-1]
-    raw = (eta[..., None] - profile.times) / span                     # (..., K)
+    raw = (eta[..., None] - profile.times.reshape((1,) * eta.ndim + (-1,))) / span    # (..., K)
     inside = (raw >= 0.0) & (raw < 1.0) if side > 0 else (raw > 0.0) & (raw <= 1.0)
     v = profile_eval(base, jnp.clip(raw, 0.0, 1.0), side)
     a = profile.coef

@@ -100,3 +100,24 @@ def perturbed(robot: Robot, payloads, stiffness=(1.0,), payload_scale=(1.0,)) ->
     """Models for a robust objective: every payload [kg] x Young's modulus factor x payload factor."""
     return [robot.replace(payload=m * ps, young=robot.young * k)
             for m in payloads for k in stiffness for ps in payload_scale]
+
+
+def law_objective(coef, tables, length, cycle_tf, dwell, grid: Grid, scales: Scales, *, order: int = 3,
+                  torque_weight: float = 10.0):
+    """Objective of the motion law alone on a fixed path: ``tables`` stacked over K models (leading
+    axis K, e.g. from ``jax.vmap(build_tables, (0, None))``), path length [m]. Cheaper than
+    ``objective``: the tables do not depend on the law."""
+    from jaxflex.profiles import shaped
+    from jaxflex.simulate import motion_samples, rollout
+
+    samples = motion_samples(length, shaped(coef, order), cycle_tf, grid)
+
+    def one(tab):
+        series = rollout(tab, samples, cycle_tf, dwell, grid)
+        energy, dwell_ms, torque = residual_terms(series)
+        return {"energy": energy, "dwell_ms": dwell_ms, "torque": torque, "metrics": metrics(series)}
+
+    t = jax.vmap(one)(tables)
+    vib = jnp.mean(t["energy"] / scales.energy + t["dwell_ms"] / scales.dwell_ms)
+    excess = jnp.maximum(t["torque"] / scales.torque_bound - 1.0, 0.0)
+    return vib + torque_weight * jnp.sum(excess**2), t

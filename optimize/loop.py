@@ -1,0 +1,119 @@
+"""optax optimizer loop: jitted update, checkpoint and resume, progress, early stop (SPEC 6).
+
+Gradients use forward-mode autodiff (``jax.jvp`` along each parameter direction, vmapped): the design
+space has few parameters (about 10) and the rollout many steps, so forward mode needs no stored
+trajectory and costs a fixed multiple of the forward rollout.
+
+The loop is deterministic for a given start (no randomness is drawn; ``seed`` only perturbs the
+start when nonzero). A checkpoint (``.npz``, written atomically) holds the parameters, the optimizer
+state, the history and the step; a rerun with the same checkpoint path resumes from it.
+"""
+from __future__ import annotations
+
+import os
+import time
+from pathlib import Path
+from typing import Callable, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from jax.flatten_util import ravel_pytree
+
+
+def value_and_grad_fwd(f: Callable) -> Callable:
+    """(value, aux), gradient of a scalar function f(params) -> (value, aux) by forward mode."""
+    def vg(params):
+        flat, unravel = ravel_pytree(params)
+        g = lambda v: f(unravel(v))
+        basis = jnp.eye(flat.shape[0], dtype=flat.dtype)
+        primal, tangent = jax.vmap(lambda t: jax.jvp(g, (flat,), (t,)))(basis)
+        value, aux = jax.tree_util.tree_map(lambda a: a[0], primal)
+        return (value, aux), unravel(tangent[0])
+    return vg
+
+
+class OptResult(NamedTuple):
+    """Best parameters, their objective value and aux terms, and the history of (step, value)."""
+
+    params: object
+    value: float
+    aux: object
+    history: list
+    steps_run: int
+    stopped: str
+    wall_s: float
+
+
+def _save(path: Path, params, opt_state, history, step, best, best_value):
+    leaves = {f"p{i}": np.asarray(v) for i, v in enumerate(jax.tree_util.tree_leaves(params))}
+    leaves.update({f"s{i}": np.asarray(v) for i, v in enumerate(jax.tree_util.tree_leaves(opt_state))})
+    leaves.update({f"b{i}": np.asarray(v) for i, v in enumerate(jax.tree_util.tree_leaves(best))})
+    tmp = path.with_name(path.name + f".tmp{os.getpid()}.npz")
+    np.savez(tmp, history=np.asarray(history, dtype=float).reshape(-1, 2), step=step,
+             best_value=best_value, **leaves)
+    os.replace(tmp, path)
+
+
+def _load(path: Path, params, opt_state):
+    z = np.load(path)
+    rebuild = lambda tree, tag: jax.tree_util.tree_unflatten(
+        jax.tree_util.tree_structure(tree),
+        [jnp.asarray(z[f"{tag}{i}"]) for i in range(len(jax.tree_util.tree_leaves(tree)))])
+    return (rebuild(params, "p"), rebuild(opt_state, "s"), [tuple(r) for r in z["history"].tolist()],
+            int(z["step"]), rebuild(params, "b"), float(z["best_value"]))
+
+
+def minimize(f: Callable, params0, *, steps: int = 100, learning_rate: float = 0.05,
+             checkpoint: str | Path | None = None, patience: int = 25, rel_tol: float = 1e-3,
+             target: float | None = None, progress: bool = True, label: str = "optimize") -> OptResult:
+    """Minimize f(params) -> (value, aux) with Adam.
+
+    Stops after ``steps`` updates, when the best value has not improved by a relative ``rel_tol``
+    for ``patience`` steps, or when it falls below ``target``. Returns the best parameters seen."""
+    opt = optax.chain(optax.clip_by_global_norm(10.0), optax.adam(learning_rate))
+    vg = value_and_grad_fwd(f)
+
+    @jax.jit
+    def update(params, state):
+        (value, aux), grad = vg(params)
+        upd, state = opt.update(grad, state, params)
+        return optax.apply_updates(params, upd), state, value, aux
+
+    params, state = params0, opt.init(params0)
+    history, step, best, best_value, best_aux = [], 0, params0, np.inf, None
+    ckpt = Path(checkpoint) if checkpoint else None
+    if ckpt and ckpt.exists():
+        params, state, history, step, best, best_value = _load(ckpt, params0, state)
+        if progress:
+            print(f"  {label}: resumed at step {step} (best {best_value:.4g})", flush=True)
+    started, last_gain, stopped = time.perf_counter(), step, "steps"
+    while step < steps:
+        new_params, state, value, aux = update(params, state)
+        value = float(value)
+        if not np.isfinite(value):
+            raise FloatingPointError(f"{label}: non-finite objective at step {step}")
+        history.append((step, value))
+        if value < best_value:
+            if value < best_value * (1 - rel_tol):
+                last_gain = step
+            best, best_value, best_aux = params, value, aux
+        params, step = new_params, step + 1
+        if progress and (step % 5 == 0 or step == 1):
+            print(f"  {label}: step {step}/{steps} objective {value:.4g} best {best_value:.4g} "
+                  f"({time.perf_counter() - started:.0f} s)", flush=True)
+        if ckpt and (step % 10 == 0 or step == steps):
+            _save(ckpt, params, state, history, step, best, best_value)
+        if target is not None and best_value < target:
+            stopped = "target"
+            break
+        if step - last_gain > patience:
+            stopped = "plateau"
+            break
+    if ckpt:
+        _save(ckpt, params, state, history, step, best, best_value)
+    if best_aux is None:                       # resumed at the end: evaluate the best once
+        (best_value, best_aux), _ = jax.jit(vg)(best)
+        best_value = float(best_value)
+    return OptResult(best, best_value, best_aux, history, step, stopped, time.perf_counter() - started)
