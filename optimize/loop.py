@@ -78,7 +78,8 @@ def minimize(f: Callable, params0, *, steps: int = 100, learning_rate: float = 0
     @jax.jit
     def update(params, state):
         (value, aux), grad = vg(params)
-        upd, state = opt.update(grad, state, params)
+        with jax.numpy_dtype_promotion("standard"):     # optax mixes Python floats and int32 counts
+            upd, state = opt.update(grad, state, params)
         return optax.apply_updates(params, upd), state, value, aux
 
     params, state = params0, opt.init(params0)

@@ -1,4 +1,7 @@
-"""Design sweeps shard their batch over devices (SPEC 6): two forced CPU host devices."""
+"""Design sweeps shard their batch over devices (SPEC 6): two forced CPU host devices.
+
+Slow (about 2 min: two compilations of the design rollout in a subprocess): run with
+``pytest -m slow tests/test_sharding.py``."""
 import json
 import os
 import pathlib
@@ -6,10 +9,12 @@ import subprocess
 import sys
 
 import numpy as np
+import pytest
 
 SCRIPT = pathlib.Path(__file__).parent / "scripts" / "sharded_sweep.py"
 
 
+@pytest.mark.slow
 def test_design_sweep_shards_over_two_host_devices_and_matches_one_device():
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=2", JAXFLEX_CACHE_DIR="")
     run = subprocess.run([sys.executable, str(SCRIPT)], env=env, capture_output=True, text=True, timeout=900)
