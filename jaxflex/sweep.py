@@ -45,7 +45,7 @@ def default_grid(robot: Robot, tfs, dwell: float, dt: float | None = None) -> Gr
     if not dt > 0:
         raise ValueError(f"time step dt must be > 0 s, got {dt}")
     tf_max = max(float(t) for t in tfs)
-    coarse = 8 * max(1, round(tf_max / 8 / 4.5e-3))          # ~4.5 ms frozen intervals
+    coarse = 8 * max(1, round(tf_max / 8 / 2.25e-3))         # ~2.25 ms frozen intervals (dt study)
     fine = max(1, math.ceil(tf_max / coarse / dt))
     dwell_steps = max(1, math.ceil(dwell / dt))
     c = math.sqrt(float(robot.young) / float(robot.rho))
