@@ -23,8 +23,9 @@ import jax.numpy as jnp
 from jaxflex.designs import Design, design_rollout
 from jaxflex.metrics import metrics
 from jaxflex.path import Cycle
+from jaxflex.profiles import shaped
 from jaxflex.robot import Robot
-from jaxflex.simulate import Grid
+from jaxflex.simulate import Grid, motion_samples, rollout
 
 N_MIN, N_MAX = 2.0, 8.0
 
@@ -107,9 +108,6 @@ def law_objective(coef, tables, length, cycle_tf, dwell, grid: Grid, scales: Sca
     """Objective of the motion law alone on a fixed path: ``tables`` stacked over K models (leading
     axis K, e.g. from ``jax.vmap(build_tables, (0, None))``), path length [m]. Cheaper than
     ``objective``: the tables do not depend on the law."""
-    from jaxflex.profiles import shaped
-    from jaxflex.simulate import motion_samples, rollout
-
     samples = motion_samples(length, shaped(coef, order), cycle_tf, grid)
 
     def one(tab):
