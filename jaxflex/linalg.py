@@ -72,17 +72,20 @@ def cholesky(a: jax.Array) -> jax.Array:
     return jnp.stack(cols, axis=1)
 
 
-def lower_inverse(lower: jax.Array) -> jax.Array:
-    """Inverse of a lower-triangular matrix by forward substitution, (n, n)."""
-    n = lower.shape[-1]
-    eye = jnp.eye(n, dtype=lower.dtype)
+def forward_substitution(lower: jax.Array, b: jax.Array) -> jax.Array:
+    """Solve L y = b for lower-triangular L (n, n); b (n,) or (n, k) (unrolled)."""
     rows = []
-    for i in range(n):
-        acc = eye[i]
+    for i in range(lower.shape[-1]):
+        acc = b[i]
         for j, r in enumerate(rows):
             acc = acc - lower[i, j] * r
         rows.append(acc / lower[i, i])
     return jnp.stack(rows)
+
+
+def lower_inverse(lower: jax.Array) -> jax.Array:
+    """Inverse of a lower-triangular matrix by forward substitution, (n, n)."""
+    return forward_substitution(lower, jnp.eye(lower.shape[-1], dtype=lower.dtype))
 
 
 def spd_solve(a: jax.Array, b: jax.Array) -> jax.Array:
@@ -94,12 +97,7 @@ def spd_solve(a: jax.Array, b: jax.Array) -> jax.Array:
     if a.shape != (n, n) or b.shape[0] != n:
         raise ValueError(f"spd_solve: shapes {a.shape} and {b.shape} do not match")
     lower = cholesky(a)
-    ys = []
-    for i in range(n):
-        acc = b[i]
-        for j, y in enumerate(ys):
-            acc = acc - lower[i, j] * y
-        ys.append(acc / lower[i, i])
+    ys = forward_substitution(lower, b)
     xs = [None] * n
     for i in reversed(range(n)):
         acc = ys[i]
