@@ -44,18 +44,20 @@ def design(d=0.025, e=None, n=3.0, coef=(1.0, 1.0, 1.0, 1.0)) -> Design:
 
 
 def design_rollout(robot: Robot, cycle: Cycle, x: Design, tf, dwell, grid: Grid, *, blend: str = "lame",
-                   order: int = 3) -> Series:
+                   order: int = 3, second_order: bool = True) -> Series:
     """Rollout of one design (motion over [0, tf] [s], then a dwell [s]); differentiable in x, robot
-    (payload, stiffness, ...) and tf. Validate concrete inputs with ``make_path`` before tracing."""
+    (payload, stiffness, ...) and tf. ``second_order`` selects the second-order fast model (see
+    ``simulate.rollout``). Validate concrete inputs with ``make_path`` before tracing."""
     path = make_path(cycle, blend, x.d, x.e, x.n)
     tables = build_tables(robot, path)
     samples = motion_samples(path.length, shaped(x.coef, order), tf, grid)
-    return rollout(tables, samples, tf, dwell, grid)
+    return rollout(tables, samples, tf, dwell, grid, robot if second_order else None)
 
 
-@functools.partial(jax.jit, static_argnames=("grid", "blend", "order"))
-def _metrics_batch(robot, cycle, xs, tf, dwell, grid, blend, order):
-    one = lambda x: metrics(design_rollout(robot, cycle, x, tf, dwell, grid, blend=blend, order=order))
+@functools.partial(jax.jit, static_argnames=("grid", "blend", "order", "second_order"))
+def _metrics_batch(robot, cycle, xs, tf, dwell, grid, blend, order, second_order):
+    one = lambda x: metrics(design_rollout(robot, cycle, x, tf, dwell, grid, blend=blend, order=order,
+                                           second_order=second_order))
     return jax.vmap(one)(xs)
 
 
@@ -70,8 +72,8 @@ class DesignSweep(NamedTuple):
 
 
 def sweep_designs(robot: Robot, cycle: Cycle, xs: Design, *, tf: float, dwell: float, grid: Grid,
-                  blend: str = "lame", order: int = 3, chunk: int | None = None, devices=None,
-                  progress: bool = False) -> DesignSweep:
+                  blend: str = "lame", order: int = 3, second_order: bool = True, chunk: int | None = None,
+                  devices=None, progress: bool = False) -> DesignSweep:
     """Metrics of a batch of D designs (leaves with a leading axis D).
 
     The batch is cut into chunks of ``chunk`` designs (default 4 per device; the last chunk is padded
@@ -96,7 +98,7 @@ def sweep_designs(robot: Robot, cycle: Cycle, xs: Design, *, tf: float, dwell: f
     parts = [jax.tree_util.tree_map(lambda v: v[i:i + chunk], padded) for i in range(0, size + pad, chunk)]
     t0 = time.perf_counter()
     compiled = _metrics_batch.lower(robot, cycle, jax.device_put(parts[0], shard), *scalars, grid=grid,
-                                    blend=blend, order=order).compile()
+                                    blend=blend, order=order, second_order=second_order).compile()
     compile_s = time.perf_counter() - t0
     out, t0 = [], time.perf_counter()
     for i, part in enumerate(parts):

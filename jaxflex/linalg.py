@@ -9,6 +9,12 @@ avoids it). The whole package therefore avoids LAPACK solves: the model (``jaxfl
 ``spd_solve`` for its mass matrices and ``solve`` for the static Newton step. These eliminations are
 plain arithmetic, so they fuse, batch and differentiate like any other jnp code and cannot hit that
 bug. Only ``jnp.linalg.eigh`` remains (modal analysis, never batched inside the rollouts).
+
+Derivatives: each function has a custom JVP from the matrix identities (d(A^-1) = -A^-1 dA A^-1,
+dL = L Phi(L^-1 dA L^-T) for Cholesky, ...), made of matrix products only. Differentiating through
+the eliminations themselves would also be exact, but reverse mode through hundreds of tiny unrolled
+or looped updates is an order of magnitude slower than these few products (measured on the rollout's
+propagators: 102 ms vs 6.5 ms forward).
 """
 from __future__ import annotations
 
@@ -16,15 +22,21 @@ import jax
 import jax.numpy as jnp
 
 
+def _check_solve(a, b, name):
+    n = a.shape[-1]
+    if a.shape != (n, n) or b.shape[0] != n:
+        raise ValueError(f"{name}: shapes {a.shape} and {b.shape} do not match")
+
+
+@jax.custom_jvp
 def solve(a: jax.Array, b: jax.Array) -> jax.Array:
     """Solve a x = b by Gaussian elimination with partial pivoting.
 
     a: (n, n); b: (n,) or (n, k). Returns x with the shape of b. Differentiable (the pivot choice is
     piecewise constant; derivatives flow through the arithmetic as for LU). The elimination is a
     rolled ``fori_loop`` so that the compiled program stays small inside scans and autodiff."""
+    _check_solve(a, b, "solve")
     n = a.shape[-1]
-    if a.shape != (n, n) or b.shape[0] != n:
-        raise ValueError(f"solve: shapes {a.shape} and {b.shape} do not match")
     vec = b.ndim == 1
     m = jnp.concatenate([a, b[:, None] if vec else b], axis=1)
     rows = jnp.arange(n)
@@ -54,11 +66,34 @@ def solve(a: jax.Array, b: jax.Array) -> jax.Array:
     return x[:, 0] if vec else x
 
 
+@solve.defjvp
+def _solve_jvp(primals, tangents):
+    a, b = primals
+    da, db = tangents
+    x = solve(a, b)
+    ai = inv(a)
+    return x, ai @ (db - da @ x)
+
+
+@jax.custom_jvp
 def inv(a: jax.Array) -> jax.Array:
     """Inverse of a small square matrix (see ``solve``)."""
     return solve(a, jnp.eye(a.shape[-1], dtype=a.dtype))
 
 
+@inv.defjvp
+def _inv_jvp(primals, tangents):
+    (a,), (da,) = primals, tangents
+    ai = inv(a)
+    return ai, -ai @ da @ ai
+
+
+def _lower_sym(a):
+    """The symmetric matrix with the lower triangle of a."""
+    return jnp.tril(a) + jnp.tril(a, -1).T
+
+
+@jax.custom_jvp
 def cholesky(a: jax.Array) -> jax.Array:
     """Lower Cholesky factor L (a = L L^T) of a symmetric positive definite matrix, (n, n)."""
     n = a.shape[-1]
@@ -72,6 +107,16 @@ def cholesky(a: jax.Array) -> jax.Array:
     return jnp.stack(cols, axis=1)
 
 
+@cholesky.defjvp
+def _cholesky_jvp(primals, tangents):
+    (a,), (da,) = primals, tangents
+    lower = cholesky(a)
+    li = lower_inverse(lower)
+    x = li @ _lower_sym(da) @ li.T                  # only the lower triangle of a is read
+    phi = jnp.tril(x) - 0.5 * jnp.diag(jnp.diag(x))
+    return lower, lower @ phi
+
+
 def forward_substitution(lower: jax.Array, b: jax.Array) -> jax.Array:
     """Solve L y = b for lower-triangular L (n, n); b (n,) or (n, k) (unrolled)."""
     rows = []
@@ -83,19 +128,27 @@ def forward_substitution(lower: jax.Array, b: jax.Array) -> jax.Array:
     return jnp.stack(rows)
 
 
+@jax.custom_jvp
 def lower_inverse(lower: jax.Array) -> jax.Array:
     """Inverse of a lower-triangular matrix by forward substitution, (n, n)."""
     return forward_substitution(lower, jnp.eye(lower.shape[-1], dtype=lower.dtype))
 
 
+@lower_inverse.defjvp
+def _lower_inverse_jvp(primals, tangents):
+    (lower,), (dl,) = primals, tangents
+    li = lower_inverse(lower)
+    return li, -li @ jnp.tril(dl) @ li
+
+
+@jax.custom_jvp
 def spd_solve(a: jax.Array, b: jax.Array) -> jax.Array:
     """Solve a x = b for a small symmetric positive definite a (n, n); b (n,) or (n, k).
 
     Unrolled Cholesky factorization and forward/backward substitution (2 n steps, no pivoting needed
     for SPD matrices); only the lower triangle of a is read."""
+    _check_solve(a, b, "spd_solve")
     n = a.shape[-1]
-    if a.shape != (n, n) or b.shape[0] != n:
-        raise ValueError(f"spd_solve: shapes {a.shape} and {b.shape} do not match")
     lower = cholesky(a)
     ys = forward_substitution(lower, b)
     xs = [None] * n
@@ -105,3 +158,12 @@ def spd_solve(a: jax.Array, b: jax.Array) -> jax.Array:
             acc = acc - lower[j, i] * xs[j]
         xs[i] = acc / lower[i, i]
     return jnp.stack(xs)
+
+
+@spd_solve.defjvp
+def _spd_solve_jvp(primals, tangents):
+    a, b = primals
+    da, db = tangents
+    x = spd_solve(a, b)
+    li = lower_inverse(cholesky(a))
+    return x, li.T @ (li @ (db - _lower_sym(da) @ x))   # only the lower triangle of a is read

@@ -57,6 +57,9 @@ class Coeffs(NamedTuple):
     jx: jax.Array     # (2, ne) J = dX/dq_e
     jx1: jax.Array    # (2, ne) dJ/dq_a . q_a,s
     jx2: jax.Array    # (2, ne) d2J/dq_a2 [q_a,s, q_a,s] + dJ/dq_a . q_a,ss
+    qa: jax.Array     # (2,) the pose: motor angles [rad]
+    qa1: jax.Array    # (2,) dq_a/ds [rad/m]
+    qa2: jax.Array    # (2,) d2q_a/ds2 [rad/m^2]
 
 
 def pose_coeffs(robot: Robot, qa, qa1, qa2) -> Coeffs:
@@ -94,8 +97,30 @@ def pose_coeffs(robot: Robot, qa, qa1, qa2) -> Coeffs:
         t0=r00[a], t1=(r01 - r00)[a], t2=(r10 - r00)[a],
         tq0=j00[a, q], tq1=(j01 - j00)[a, q], tq2=(j10 - j00)[a, q],
         tv0=j00[a, v], tv1=(j10 - j00)[a, v],
-        jx=jx, jx1=jx1, jx2=jx2,
+        jx=jx, jx1=jx1, jx2=jx2, qa=qa, qa1=qa1, qa2=qa2,
     )
+
+
+def remainder(robot: Robot, qa, qa1, qa2, ds, dds, x, qedd):
+    """Second-order remainder (2 + ne,) of the full reduced equations along the path.
+
+    With the motors at q_a (2,) [rad] moving at path speed ds [m/s] and acceleration dds [m/s^2]
+    (q_a,s = qa1, q_a,ss = qa2) and the elastic state x = [q_e, q_e'] (2 ne,) with acceleration
+    qedd (ne,), the full equations read R(z) = M(q) [q_a''; q_e''] + F(q, q') = [tau; 0] with
+    z = [q_e, q_e', q_e'']. The linearized model keeps R(0) + R'(0) z; this returns the rest,
+    R(z) - R(0) - R'(0) z = O(|z|^2): rows [:2] add to the motor torques [N m], rows [2:] (with a
+    minus sign) to the elastic forcing f. Used by the second-order rollout (``simulate.rollout``)."""
+    ne = x.shape[0] // 2
+    qad = qa1 * ds
+    qadd = qa2 * ds**2 + qa1 * dds
+
+    def full(z):
+        red = mdl.reduced(robot, qa, z[:ne], qad, z[ne:2 * ne])
+        return red.mass @ jnp.concatenate([qadd, z[2 * ne:]]) + red.force
+
+    z = jnp.concatenate([x, qedd])
+    r0, r1 = jax.jvp(full, (jnp.zeros_like(z),), (z,))
+    return full(z) - r0 - r1
 
 
 def path_pose(robot: Robot, path: Path, s):

@@ -1,8 +1,9 @@
 """optax optimizer loop: jitted update, checkpoint and resume, progress, early stop (SPEC 6).
 
-Gradients use forward-mode autodiff (``jax.jvp`` along each parameter direction, vmapped): the design
-space has few parameters (about 10) and the rollout many steps, so forward mode needs no stored
-trajectory and costs a fixed multiple of the forward rollout.
+Gradients use reverse mode by default (``jax.value_and_grad``: one backward pass whatever the number
+of parameters; the small linear algebra has cheap custom derivatives, see ``jaxflex.linalg``), or
+forward mode (``value_and_grad_fwd``: a vmapped ``jax.jvp`` per parameter, no stored trajectory;
+cheaper only for two or three parameters).
 
 The loop is deterministic for a given start (no randomness is drawn; ``seed`` only perturbs the
 start when nonzero). A checkpoint (``.npz``, written atomically) holds the parameters, the optimizer
@@ -67,13 +68,17 @@ def _load(path: Path, params, opt_state):
 
 def minimize(f: Callable, params0, *, steps: int = 100, learning_rate: float = 0.05,
              checkpoint: str | Path | None = None, patience: int = 25, rel_tol: float = 1e-3,
-             target: float | None = None, progress: bool = True, label: str = "optimize") -> OptResult:
+             target: float | None = None, progress: bool = True, label: str = "optimize",
+             mode: str = "reverse") -> OptResult:
     """Minimize f(params) -> (value, aux) with Adam.
 
     Stops after ``steps`` updates, when the best value has not improved by a relative ``rel_tol``
-    for ``patience`` steps, or when it falls below ``target``. Returns the best parameters seen."""
+    for ``patience`` steps, or when it falls below ``target``. Returns the best parameters seen.
+    ``mode``: "reverse" or "forward" autodiff for the gradient."""
+    if mode not in ("reverse", "forward"):
+        raise ValueError(f"mode must be 'reverse' or 'forward', got {mode!r}")
     opt = optax.chain(optax.clip_by_global_norm(10.0), optax.adam(learning_rate))
-    vg = value_and_grad_fwd(f)
+    vg = value_and_grad_fwd(f) if mode == "forward" else jax.value_and_grad(f, has_aux=True)
 
     @jax.jit
     def update(params, state):

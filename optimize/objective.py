@@ -70,12 +70,13 @@ def residual_terms(series) -> tuple:
 
 
 def objective_terms(params: Params, robots: Robot, cycle: Cycle, tf, dwell, grid: Grid, *,
-                    blend: str = "lame", order: int = 3) -> dict:
+                    blend: str = "lame", order: int = 3, second_order: bool = True) -> dict:
     """Per-model terms for a batch of K robots (leaves with a leading axis K, e.g. payloads)."""
     x = decode(cycle, params)
 
     def one(robot):
-        series = design_rollout(robot, cycle, x, tf, dwell, grid, blend=blend, order=order)
+        series = design_rollout(robot, cycle, x, tf, dwell, grid, blend=blend, order=order,
+                                second_order=second_order)
         energy, dwell_ms, torque = residual_terms(series)
         return {"energy": energy, "dwell_ms": dwell_ms, "torque": torque, "metrics": metrics(series)}
 
@@ -83,10 +84,11 @@ def objective_terms(params: Params, robots: Robot, cycle: Cycle, tf, dwell, grid
 
 
 def objective(params: Params, robots: Robot, cycle: Cycle, tf, dwell, grid: Grid, scales: Scales, *,
-              blend: str = "lame", order: int = 3, torque_weight: float = 10.0):
+              blend: str = "lame", order: int = 3, torque_weight: float = 10.0, second_order: bool = True):
     """Scalar objective (dimensionless; 2 for a design as good as the reference on every model) and
     the per-model terms."""
-    t = objective_terms(params, robots, cycle, tf, dwell, grid, blend=blend, order=order)
+    t = objective_terms(params, robots, cycle, tf, dwell, grid, blend=blend, order=order,
+                        second_order=second_order)
     vib = jnp.mean(t["energy"] / scales.energy + t["dwell_ms"] / scales.dwell_ms)
     excess = jnp.maximum(t["torque"] / scales.torque_bound - 1.0, 0.0)
     return vib + torque_weight * jnp.sum(excess**2), t
@@ -104,18 +106,19 @@ def perturbed(robot: Robot, payloads, stiffness=(1.0,), payload_scale=(1.0,)) ->
 
 
 def law_objective(coef, tables, length, cycle_tf, dwell, grid: Grid, scales: Scales, *, order: int = 3,
-                  torque_weight: float = 10.0):
+                  torque_weight: float = 10.0, robots: Robot | None = None):
     """Objective of the motion law alone on a fixed path: ``tables`` stacked over K models (leading
-    axis K, e.g. from ``jax.vmap(build_tables, (0, None))``), path length [m]. Cheaper than
-    ``objective``: the tables do not depend on the law."""
+    axis K, e.g. from ``jax.vmap(build_tables, (0, None))``), path length [m]; ``robots`` the K
+    models stacked (``stack_robots``) for the second-order fast model, None for the first-order one.
+    Cheaper than ``objective``: the tables do not depend on the law."""
     samples = motion_samples(length, shaped(coef, order), cycle_tf, grid)
 
-    def one(tab):
-        series = rollout(tab, samples, cycle_tf, dwell, grid)
+    def one(tab, robot):
+        series = rollout(tab, samples, cycle_tf, dwell, grid, robot)
         energy, dwell_ms, torque = residual_terms(series)
         return {"energy": energy, "dwell_ms": dwell_ms, "torque": torque, "metrics": metrics(series)}
 
-    t = jax.vmap(one)(tables)
+    t = jax.vmap(one)(tables, robots)
     vib = jnp.mean(t["energy"] / scales.energy + t["dwell_ms"] / scales.dwell_ms)
     excess = jnp.maximum(t["torque"] / scales.torque_bound - 1.0, 0.0)
     return vib + torque_weight * jnp.sum(excess**2), t

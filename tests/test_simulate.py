@@ -157,3 +157,28 @@ def test_non_finite_metrics_name_the_run():
     mets["max_torque_nm"][0, 1, 1] = np.nan
     with pytest.raises(FloatingPointError, match="blend=lame, profile=bang_bang, payload=0.1 kg"):
         _check_finite(mets, ("lame",), ("poly7", "bang_bang"), (Case(6.0, 0.43), Case(0.1, 0.3)))
+
+
+def test_second_order_remainder_is_quadratic_and_consistent_with_tables(setup):
+    """linearized.remainder is the full model minus its linearization: it must scale as eps^2 with the
+    elastic state (ratio 4 when doubled, to O(eps^3)) and vanish against the tables' own linear
+    model: R(z) - remainder(z) = R(0) + R'(0) z, whose elastic rows are M q'' + C q' + K q - f."""
+    from jaxflex.linearized import evaluate, pose_coeffs, remainder
+    remainder = jax.jit(remainder)
+    robot, path, _ = setup
+    qa, qa1, qa2 = path_pose(robot, path, 0.5 * path.length)
+    ds, dds = 1.3, -7.0
+    rng = np.random.default_rng(3)
+    # amplitudes of the order of the real deflections (the cubic terms of the stiff axial rows stay
+    # below 3 % of the quadratic ones here; at 1e-4 they reach 40 %)
+    x, qdd = jnp.asarray(rng.normal(size=24) * 1e-6), jnp.asarray(rng.normal(size=12) * 1e-3)
+    r1 = remainder(robot, qa, qa1, qa2, ds, dds, x, qdd)
+    r2 = remainder(robot, qa, qa1, qa2, ds, dds, 2 * x, 2 * qdd)
+    np.testing.assert_allclose(np.asarray(r2) / np.asarray(r1), 4.0, rtol=4e-2)
+    # linear part from the tables' coefficients at the same pose
+    m, k, c, f, tq, tv, tr = evaluate(jax.jit(pose_coeffs)(robot, qa, qa1, qa2), ds, dds)
+    red = jax.jit(mdl.reduced)(robot, qa, x[:12], qa1 * ds, x[12:])
+    full = red.mass @ jnp.concatenate([qa2 * ds**2 + qa1 * dds, qdd]) + red.force
+    lin_e = m @ qdd + c @ x[12:] + k @ x[:12] - f
+    scale = np.max(np.abs(np.asarray(f)))
+    np.testing.assert_allclose(full[2:] - r1[2:], lin_e, atol=1e-9 * scale)
