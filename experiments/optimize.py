@@ -1,0 +1,138 @@
+"""``jaxflex optimize``: optimize the motion law for residual vibration and compare with the baselines.
+
+Thin wrapper around ``jaxflex.optimize.study.optimize_law``: prints the comparison (dwell residual on
+the nominal, perturbed and damped models; peak torque), writes the SPEC 7 JSON, and with ``--out DIR``
+the checkpoint (resumable), ``trajectory.csv`` (t, x, y, q1, q2 at 10 kHz) and a figure.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxflex.path import make_path
+from jaxflex.profiles import profile_eval, shaped
+from jaxflex.robot import cycle_preset, igm, robot_preset
+from jaxflex.trajectory import task_from_arc
+from jaxflex.optimize.study import optimize_law
+
+from .io import atomic_path, fmt, provenance, save_figure, table, write_json
+
+CSV_RATE_HZ = 10_000
+
+
+def trajectory_rows(robot, path, profile, tf: float, rate: float = CSV_RATE_HZ) -> np.ndarray:
+    """(T, 5) rows t [s], x, y [m], q1, q2 [rad] sampled at ``rate`` [Hz] over [0, tf]."""
+    t = np.arange(int(round(tf * rate)) + 1) / rate
+    t[-1] = min(t[-1], tf)
+    v = profile_eval(profile, jnp.asarray(t / tf))
+    s = v.s * path.length
+    x = task_from_arc(path, s, jnp.zeros_like(s), jnp.zeros_like(s), jnp.zeros_like(s))[0]
+    q = jax.vmap(lambda p: igm(robot, p))(x)
+    return np.column_stack([t, np.asarray(x), np.asarray(q)])
+
+
+def write_trajectory_csv(path_out, rows: np.ndarray) -> None:
+    with atomic_path(path_out) as tmp:
+        np.savetxt(tmp, rows, delimiter=",", header="t,x,y,q1,q2", comments="", fmt="%.12g")
+
+
+def summary(study) -> dict:
+    """Per law: dwell residual [mm] (nominal per payload, worst perturbed, damped per payload), peak
+    torque [N m] (nominal), and the ratio of the best paper law's residual to the law's."""
+    ev = study.evaluations
+    best = next(k for k in ev["nominal"] if k.endswith("(best paper)"))
+    out = {}
+    for law in ev["nominal"]:
+        nom = ev["nominal"][law]
+        pert = ev["perturbed"][law]["dwell_residual_mm"]
+        pert_ref = ev["perturbed"][best]["dwell_residual_mm"]
+        out[law] = {
+            "dwell_residual_mm": nom["dwell_residual_mm"].tolist(),
+            "ratio_best_paper": (ev["nominal"][best]["dwell_residual_mm"] / nom["dwell_residual_mm"]).tolist(),
+            "perturbed_worst_mm": float(pert.max()),
+            "perturbed_ratio_worst": float(np.min(pert_ref / pert)),
+            "perturbed_ratio_of_worst": float(pert_ref.max() / pert.max()),
+            "damped_mm": ev["damped"][law]["dwell_residual_mm"].tolist(),
+            "max_torque_nm": nom["max_torque_nm"].tolist(),
+            "residual_energy": nom["residual_energy"].tolist(),
+            "metrics": {k: v.tolist() for k, v in nom.items()},
+        }
+    return out
+
+
+def text(rec: dict) -> str:
+    head = ["law", "dwell [mm]", "x best paper", "perturbed worst [mm]", "x (worst/worst)",
+            "min x per model", "damped [mm]", "torque [N m]"]
+    j = lambda v: " / ".join(fmt(x, 3) for x in v)
+    rows = [[k, j(v["dwell_residual_mm"]), j(v["ratio_best_paper"]), fmt(v["perturbed_worst_mm"], 3),
+             fmt(v["perturbed_ratio_of_worst"], 3), fmt(v["perturbed_ratio_worst"], 3), j(v["damped_mm"]),
+             j(v["max_torque_nm"])] for k, v in rec["laws"].items()]
+    return (f"Motion-law optimization: payloads {rec['payloads']} kg, tf {rec['tf']:g} s, path {rec['blend']} "
+            f"(d = e = 25 mm); torque bound (poly7-Lame) {j(rec['torque_bound_nm'])} N m\n\n"
+            + table(head, rows)
+            + f"\n\noptimizer: {rec['steps_run']} steps, stopped: {rec['stopped']}, {rec['optimize_s']:.0f} s; "
+              f"study {rec['provenance']['wall_time_s']:.0f} s")
+
+
+def figure(study, robot, path, out_dir: Path):
+    import matplotlib.pyplot as plt
+
+    from jaxflex.profiles import make_profile
+
+    best = make_profile(study.best_paper)
+    opt = shaped(jnp.asarray(study.coef))
+    eta = jnp.linspace(0, 1, 400)
+    fig, ax = plt.subplots(1, 2, figsize=(10, 3.6))
+    for p, lab in ((best, f"{study.best_paper} (best paper)"), (make_profile("poly7"), "poly7"), (opt, "optimized")):
+        v = profile_eval(p, eta)
+        ax[0].plot(eta, v.ds, label=lab)
+        ax[1].plot(eta, v.dds, label=lab)
+    ax[0].set(xlabel="t / tf", ylabel="S'", title="motion law: velocity")
+    ax[1].set(xlabel="t / tf", ylabel="S''", title="acceleration")
+    ax[0].legend()
+    save_figure(fig, out_dir / "optimized_law.png")
+
+
+def compute(preset="default", payloads=(6.0,), tf=0.43, steps=150, n_coef=6, robust=False, out=None,
+            learning_rate=0.05) -> dict:
+    started = time.time()
+    robot, cycle = robot_preset(preset), cycle_preset(preset)
+    ckpt = None
+    if out:
+        Path(out).mkdir(parents=True, exist_ok=True)
+        ckpt = Path(out) / "checkpoint.npz"
+    study = optimize_law(robot, cycle, payloads, tf, steps=steps, n_coef=n_coef, robust=robust,
+                         checkpoint=ckpt, learning_rate=learning_rate)
+    path = make_path(cycle, study.blend, 0.025)
+    rec = {"payloads": list(study.payloads), "tf": tf, "blend": study.blend, "best_paper": study.best_paper,
+           "design": {"blend": study.blend, "d": 0.025, "e": 0.025, "law": "shaped", "order": 3,
+                      "coef": study.coef.tolist()},
+           "laws": summary(study), "torque_bound_nm": study.torque_bound.tolist(),
+           "ruckig_limits": study.ruckig_limits, "first_mode_hz": list(study.first_mode_hz),
+           "model_sets": {k: list(v) for k, v in study.sets.items()},
+           "history": [list(h) for h in study.result.history], "steps_run": study.result.steps_run,
+           "stopped": study.result.stopped, "optimize_s": study.result.wall_s,
+           "grid": study.grid._asdict(),
+           "provenance": provenance({"preset": preset, "payloads": list(payloads), "tf": tf, "steps": steps,
+                                     "n_coef": n_coef, "robust": robust, "learning_rate": learning_rate},
+                                    started)}
+    if out:
+        out = Path(out)
+        rows = trajectory_rows(robot.replace(payload=payloads[0]), path, shaped(jnp.asarray(study.coef)), tf)
+        write_trajectory_csv(out / "trajectory.csv", rows)
+        figure(study, robot, path, out)
+        write_json(out / "optimize.json", rec)
+    return rec
+
+
+def run(preset="default", payloads=(6.0,), tf=0.43, steps=150, n_coef=6, robust=False, out=None,
+        json_path=None, learning_rate=0.05) -> dict:
+    rec = compute(preset, payloads, tf, steps, n_coef, robust, out, learning_rate)
+    print(text(rec))
+    if json_path:
+        write_json(json_path, rec)
+    return rec

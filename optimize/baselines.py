@@ -1,0 +1,142 @@
+"""Baselines for the optimized designs (SPEC 6), evaluated on the same model and path.
+
+- the paper's laws (``jaxflex.profiles.make_profile``) and their input-shaped versions (ZV, ZVD tuned to
+  the first locked-motor mode at the place pose, equal total motion time: ``shaper_profiles``);
+- a jerk-limited, time-optimal (double-S) profile along the path computed by Ruckig (optional
+  dependency, ``pip install ruckig``), with limits scaled so that its duration is exactly tf
+  (``ruckig_samples``).
+
+Every law is turned into ``MotionSamples`` (arc length and its derivatives on the rollout grid), so all
+of them go through the same compiled rollout (``LawEvaluator``).
+"""
+from __future__ import annotations
+
+import functools
+from typing import NamedTuple, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxflex import model as mdl
+from jaxflex.linearized import build_tables
+from jaxflex.metrics import metrics
+from jaxflex.path import Cycle, Path
+from jaxflex.profiles import Profile, zv, zvd
+from jaxflex.robot import Robot, igm
+from jaxflex.simulate import Grid, MotionSamples, rollout
+
+# Ruckig limit shape (units of L / tf^k): velocity and acceleration of a trapezoid with ta = tf/4,
+# jerk time half the acceleration time. The limits are then scaled in time so the duration is tf.
+RUCKIG_SHAPE = (4.0 / 3.0, 16.0 / 3.0, 16.0 / 3.0 / 0.125)
+
+
+def place_first_mode_hz(robot: Robot, cycle: Cycle) -> float:
+    """First locked-motor natural frequency [Hz] at the place pose (payload included)."""
+    return float(mdl.locked_modes(robot, igm(robot, jnp.asarray(cycle.place)))[0][0])
+
+
+def shaper_profiles(base: str, freq_hz: float, tf: float) -> list[Profile]:
+    """ZV and ZVD versions of the paper law ``base`` for a mode at freq_hz [Hz], total time tf [s]."""
+    return [zv(base, freq_hz, tf), zvd(base, freq_hz, tf)]
+
+
+def _ruckig_trajectory(length: float, limits):
+    try:
+        from ruckig import InputParameter, Result, Ruckig, Trajectory
+    except ImportError as err:  # pragma: no cover - depends on the optional extra
+        raise ImportError("the Ruckig baseline needs the optional dependency: pip install ruckig") from err
+    inp = InputParameter(1)
+    inp.current_position, inp.current_velocity, inp.current_acceleration = [0.0], [0.0], [0.0]
+    inp.target_position, inp.target_velocity, inp.target_acceleration = [float(length)], [0.0], [0.0]
+    inp.max_velocity, inp.max_acceleration, inp.max_jerk = ([float(v)] for v in limits)
+    traj = Trajectory(1)
+    result = Ruckig(1).calculate(inp, traj)
+    if result not in (Result.Working, Result.Finished):
+        raise RuntimeError(f"Ruckig failed: {result}")
+    return traj
+
+
+def ruckig_limits(length: float, tf: float, shape=RUCKIG_SHAPE) -> tuple:
+    """Velocity [m/s], acceleration [m/s^2] and jerk [m/s^3] limits of the given shape whose
+    time-optimal jerk-limited profile over ``length`` [m] lasts exactly tf [s] (time scaling:
+    limits (c v, c^2 a, c^3 j) shorten the duration by the factor c)."""
+    base = [k * length / tf ** (i + 1) for i, k in enumerate(shape)]
+    c = _ruckig_trajectory(length, base).duration / tf
+    return tuple(b * c ** (i + 1) for i, b in enumerate(base))
+
+
+def ruckig_samples(length: float, tf: float, grid: Grid, shape=RUCKIG_SHAPE) -> tuple[MotionSamples, tuple]:
+    """Motion samples of the Ruckig profile on the rollout grid (s, s', s'' continuous: one-sided
+    limits coincide), and the limits used."""
+    limits = ruckig_limits(length, tf, shape)
+    traj = _ruckig_trajectory(length, limits)
+    if abs(traj.duration - tf) > 1e-9 * tf:
+        raise RuntimeError(f"Ruckig duration {traj.duration} s != tf {tf} s")
+    n, nc = grid.steps, grid.coarse
+
+    def at(eta):
+        vals = np.array([[v[0] for v in traj.at_time(float(e) * tf)[:3]] for e in eta])
+        s = np.clip(vals[:, 0], 0.0, length)
+        return jnp.asarray(s), jnp.asarray(vals[:, 1]), jnp.asarray(vals[:, 2])
+
+    k = np.arange(n)
+    return MotionSamples(start=at(k / n), end=at((k + 1) / n), mid=at((np.arange(nc) + 0.5) / nc)), limits
+
+
+class ModelSet(NamedTuple):
+    """K robots stacked (leading axis) with labels."""
+
+    robots: Robot
+    labels: tuple
+
+
+def model_set(robot: Robot, payloads: Sequence[float], *, stiffness=(1.0,), payload_scale=(1.0,),
+              damping_ratio: float = 0.0, cycle: Cycle | None = None) -> ModelSet:
+    """Every payload [kg] x Young's modulus factor x payload factor; with ``damping_ratio`` > 0 a
+    stiffness-proportional (Rayleigh beta) damping giving that ratio at the first mode of the place
+    pose (``cycle`` needed)."""
+    robots, labels = [], []
+    for m in payloads:
+        for k in stiffness:
+            for ps in payload_scale:
+                r = robot.replace(payload=m * ps, young=robot.young * k)
+                if damping_ratio > 0:
+                    w1 = 2 * np.pi * place_first_mode_hz(r, cycle)
+                    r = r.replace(damping=jnp.asarray([0.0, 2 * damping_ratio / w1]))
+                robots.append(r)
+                labels.append(f"{m:g} kg x{ps:g}, E x{k:g}" + (f", zeta {damping_ratio:g}" if damping_ratio else ""))
+    stacked = jax.tree_util.tree_map(lambda *a: jnp.stack([jnp.asarray(v, dtype=float) for v in a]), *robots)
+    return ModelSet(stacked, tuple(labels))
+
+
+@functools.partial(jax.jit, static_argnames=("grid",))
+def _law_metrics(tables, robots, samples, tf, dwell, grid):
+    return jax.vmap(lambda tab, r: metrics(rollout(tab, samples, tf, dwell, grid, r)))(tables, robots)
+
+
+class LawEvaluator:
+    """Metrics of any motion law along one path on a set of models (second-order fast model).
+
+    The tables are built once per model; every law (paper, shaped, input-shaped, Ruckig samples)
+    reuses one compiled rollout."""
+
+    def __init__(self, models: ModelSet, path: Path, tf: float, dwell: float, grid: Grid):
+        self.models, self.path, self.tf, self.dwell, self.grid = models, path, tf, dwell, grid
+        self.tables = jax.jit(jax.vmap(build_tables, (0, None)))(models.robots, path)
+
+    def samples(self, profile: Profile) -> MotionSamples:
+        from jaxflex.simulate import motion_samples
+
+        return motion_samples(self.path.length, profile, self.tf, self.grid)
+
+    def __call__(self, law) -> dict:
+        """law: a Profile or MotionSamples -> metrics dict name -> (K,) numpy arrays."""
+        samples = law if isinstance(law, MotionSamples) else self.samples(law)
+        out = _law_metrics(self.tables, self.models.robots, samples, jnp.asarray(self.tf),
+                           jnp.asarray(self.dwell), self.grid)
+        out = {k: np.asarray(v) for k, v in out.items()}
+        bad = [k for k, v in out.items() if not np.all(np.isfinite(v))]
+        if bad:
+            raise FloatingPointError(f"non-finite {bad} for law {getattr(law, 'name', 'samples')}")
+        return out

@@ -1,0 +1,122 @@
+"""Motion-law optimization against the paper's best combination and the industrial baselines.
+
+``optimize_law`` is the whole study for one or several payloads at a fixed motion time:
+
+1. the 12 paper combinations (``jaxflex.sweep``) give the best one (smallest dwell residual; for
+   several payloads the smallest worst-case ratio to each payload's best) and the torque bound
+   (the poly7-Lamé peak torque);
+2. a shaped monotone law (``jaxflex.profiles.shaped``) on the best combination's path is optimized
+   by gradient (reverse mode through the whole second-order rollout, optax Adam) on the training
+   models, each normalized by the best paper law on the same model;
+3. the optimized law and every baseline (best paper law, its ZV/ZVD shaping, Ruckig) are evaluated
+   on the same path and models: nominal, perturbed (E x {0.95, 1.05}, payload x {0.9, 1.1}), and
+   with 1 % damping at the first mode.
+"""
+from __future__ import annotations
+
+import time
+from typing import NamedTuple, Sequence
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxflex.path import Cycle, make_path
+from jaxflex.profiles import make_profile, shaped
+from jaxflex.robot import Robot
+from jaxflex.simulate import Grid
+from jaxflex.sweep import Case, default_grid, run_sweep
+
+from .baselines import LawEvaluator, model_set, place_first_mode_hz, ruckig_samples, shaper_profiles
+from .loop import OptResult, minimize
+from .objective import Scales, law_objective
+
+PERTURB_E = (0.95, 1.0, 1.05)
+PERTURB_PAYLOAD = (0.9, 1.0, 1.1)
+DAMPING_RATIO = 0.01
+
+
+class LawStudy(NamedTuple):
+    """Everything the study measured. ``evaluations[set][law]`` is a metrics dict name -> (K,)
+    array over that set's models; ``sets`` maps a set name to its model labels."""
+
+    payloads: tuple
+    tf: float
+    blend: str
+    best_paper: str
+    coef: np.ndarray
+    result: OptResult
+    evaluations: dict
+    sets: dict
+    paper: dict
+    torque_bound: np.ndarray
+    ruckig_limits: tuple | None
+    first_mode_hz: tuple
+    grid: Grid
+    wall_s: float
+
+
+def paper_best(robot: Robot, cycle: Cycle, payloads, tf, dwell, grid):
+    """Paper sweep per payload and the best combination (blend, law) for all of them together."""
+    res = run_sweep(robot, cycle, [Case(m, tf) for m in payloads], dwell=dwell, grid=grid)
+    dw = res.metrics["dwell_residual_mm"]                                  # (B, P, C)
+    ratio = np.max(dw / dw.min(axis=(0, 1), keepdims=True), axis=-1)       # worst over payloads
+    i, j = np.unravel_index(np.argmin(ratio), ratio.shape)
+    return res, res.blends[i], res.profiles[j]
+
+
+def optimize_law(robot: Robot, cycle: Cycle, payloads: Sequence[float] = (6.0,), tf: float = 0.43, *,
+                 dwell: float = 0.1, n_coef: int = 6, steps: int = 150, learning_rate: float = 0.05,
+                 robust: bool = False, checkpoint=None, ruckig: bool = True, progress: bool = True,
+                 grid: Grid | None = None) -> LawStudy:
+    """Run the study (see module docstring). ``robust`` trains on the perturbed models instead of
+    the nominal ones. Returns a ``LawStudy``."""
+    started = time.time()
+    payloads = tuple(float(m) for m in payloads)
+    grid = grid or default_grid(robot, [tf], dwell)
+    res, blend, law = paper_best(robot, cycle, payloads, tf, dwell, grid)
+    path = make_path(cycle, blend, 0.025)
+    if progress:
+        print(f"best paper combination at tf = {tf:g} s for {list(payloads)} kg: {blend} / {law}", flush=True)
+    sets = {
+        "nominal": model_set(robot, payloads),
+        "perturbed": model_set(robot, payloads, stiffness=PERTURB_E, payload_scale=PERTURB_PAYLOAD),
+        "damped": model_set(robot, payloads, damping_ratio=DAMPING_RATIO, cycle=cycle),
+    }
+    evaluators = {k: LawEvaluator(s, path, tf, dwell, grid) for k, s in sets.items()}
+    train = evaluators["perturbed" if robust else "nominal"]
+    freqs = tuple(place_first_mode_hz(robot.replace(payload=m), cycle) for m in payloads)
+
+    # baselines: the best paper law, its shaped versions (tuned to the first payload's mode), Ruckig
+    laws = {f"{blend}/{law} (best paper)": make_profile(law)}
+    for p in shaper_profiles(law, freqs[0], tf):
+        laws[f"{blend}/{p.name}"] = p
+    limits = None
+    if ruckig:
+        try:
+            smp, limits = ruckig_samples(float(path.length), tf, grid)
+            laws[f"{blend}/ruckig"] = smp
+        except ImportError as err:
+            if progress:
+                print(f"  (Ruckig baseline skipped: {err})", flush=True)
+    ref = train(laws[f"{blend}/{law} (best paper)"])
+    i_lame = res.blends.index("lame") if "lame" in res.blends else 0
+    torque_bound = np.asarray(res.metrics["max_torque_nm"][i_lame, res.profiles.index("poly7"), :])
+    # per training model: the bound of its payload
+    k_per = len(train.models.labels) // len(payloads)
+    bound = jnp.asarray(np.repeat(torque_bound, k_per))
+    amp_ref = ref["dwell_residual_mm"] * 1e-3
+    scales = Scales(energy=jnp.asarray(ref["residual_energy"]), dwell_ms=jnp.asarray(amp_ref**2 / 2),
+                    torque_bound=bound)
+    robots = train.models.robots
+    objective = lambda coef: law_objective(coef, train.tables, path.length, tf, dwell, grid, scales,
+                                           robots=robots)
+    result = minimize(objective, jnp.ones(n_coef), steps=steps, learning_rate=learning_rate,
+                      checkpoint=checkpoint, patience=40, progress=progress, label="law")
+    coef = np.asarray(result.params)
+    laws["optimized"] = shaped(jnp.asarray(coef), name="optimized")
+    evaluations = {name: {k: ev(p) for k, p in laws.items()} for name, ev in evaluators.items()}
+    paper = {k: np.asarray(v) for k, v in res.metrics.items()}
+    return LawStudy(payloads, tf, blend, law, coef, result, evaluations,
+                    {k: s.labels for k, s in sets.items()}, paper, torque_bound, limits, freqs, grid,
+                    time.time() - started)

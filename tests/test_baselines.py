@@ -1,0 +1,55 @@
+"""Baselines and outputs of the optimization study that need no rollout: Ruckig timing, model sets,
+the controller trajectory export."""
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxflex import model as mdl
+from jaxflex.experiments.optimize import trajectory_rows
+from jaxflex.optimize.baselines import model_set, place_first_mode_hz, ruckig_limits, ruckig_samples
+from jaxflex.path import make_path
+from jaxflex.profiles import make_profile
+from jaxflex.robot import cycle_preset, dgm, igm, robot_preset
+from jaxflex.simulate import Grid
+
+
+def test_ruckig_profile_lasts_tf_and_respects_its_limits():
+    pytest.importorskip("ruckig")
+    length, tf = 0.384, 0.43
+    v, a, j = ruckig_limits(length, tf)
+    grid = Grid(coarse=64, fine=10, dwell_steps=10)
+    smp, limits = ruckig_samples(length, tf, grid)
+    s, ds, dds = (np.asarray(x) for x in smp.start)
+    # starts at rest, ends at the target (left limit of the last step), monotone, within the limits
+    assert s[0] == 0 and ds[0] == 0 and dds[0] == 0
+    np.testing.assert_allclose(np.asarray(smp.end[0])[-1], length, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(smp.end[1])[-1], 0.0, atol=1e-9)
+    assert np.all(np.diff(s) >= 0)
+    assert ds.max() <= v * (1 + 1e-9) and np.abs(dds).max() <= a * (1 + 1e-9)
+    # time scaling: limits scale as (c, c^2, c^3) with 1 / duration
+    v2, a2, j2 = ruckig_limits(length, tf / 2)
+    np.testing.assert_allclose([v2 / v, a2 / a, j2 / j], [2, 4, 8], rtol=1e-9)
+
+
+def test_model_set_damping_ratio_at_first_mode():
+    robot, cycle = robot_preset("default"), cycle_preset()
+    ms = model_set(robot, [6.0], damping_ratio=0.01, cycle=cycle)
+    beta = float(ms.robots.damping[0, 1])
+    f1 = place_first_mode_hz(robot.replace(payload=6.0), cycle)
+    np.testing.assert_allclose(beta * 2 * np.pi * f1 / 2, 0.01, rtol=1e-12)   # zeta = beta omega / 2
+    ms = model_set(robot, [0.1, 6.0], stiffness=(0.95, 1.05), payload_scale=(0.9, 1.1))
+    assert len(ms.labels) == 8
+    np.testing.assert_allclose(np.asarray(ms.robots.payload), [0.09, 0.11, 0.09, 0.11, 5.4, 6.6, 5.4, 6.6])
+
+
+def test_trajectory_csv_rows_follow_the_path_at_10khz():
+    robot, cycle = robot_preset("default", payload=6.0), cycle_preset()
+    path = make_path(cycle, "lame", 0.025)
+    rows = trajectory_rows(robot, path, make_profile("poly7"), 0.43)
+    assert rows.shape == (4301, 5)
+    np.testing.assert_allclose(np.diff(rows[:, 0]), 1e-4, atol=1e-12)
+    np.testing.assert_allclose(rows[0, 1:3], np.asarray(cycle.pick), atol=1e-12)
+    np.testing.assert_allclose(rows[-1, 1:3], np.asarray(cycle.place), atol=1e-12)
+    # joint angles are the rigid IGM of the positions (the forward model maps them back)
+    for k in (0, 1234, 4300):
+        np.testing.assert_allclose(np.asarray(dgm(robot, jnp.asarray(rows[k, 3:5]))), rows[k, 1:3], atol=1e-12)
