@@ -17,7 +17,7 @@ from jaxflex.path import make_path
 from jaxflex.profiles import profile_eval, shaped
 from jaxflex.robot import cycle_preset, igm, robot_preset
 from jaxflex.trajectory import task_from_arc
-from jaxflex.optimize.study import optimize_law
+from jaxflex.optimize.study import optimize_law, verify_law
 
 from .io import atomic_path, fmt, provenance, save_figure, table, write_json
 
@@ -75,7 +75,18 @@ def text(rec: dict) -> str:
             f"(d = e = 25 mm); torque bound (poly7-Lame) {j(rec['torque_bound_nm'])} N m\n\n"
             + table(head, rows)
             + f"\n\noptimizer: {rec['steps_run']} steps, stopped: {rec['stopped']}, {rec['optimize_s']:.0f} s; "
-              f"study {rec['provenance']['wall_time_s']:.0f} s")
+              f"study {rec['provenance']['wall_time_s']:.0f} s" + _verification_text(rec))
+
+
+def _verification_text(rec: dict) -> str:
+    if "verification" not in rec:
+        return ""
+    lines = ["", "", "Verification (dwell residual [mm], nominal model):"]
+    for case, laws in rec["verification"].items():
+        methods = list(next(iter(laws.values())))
+        rows = [[law] + [fmt(v[m], 4) for m in methods] for law, v in laws.items()]
+        lines += [f"{case}:", table(["law"] + methods, rows)]
+    return "\n".join(lines)
 
 
 def figure(study, robot, path, out_dir: Path):
@@ -98,7 +109,7 @@ def figure(study, robot, path, out_dir: Path):
 
 
 def compute(preset="default", payloads=(6.0,), tf=0.43, steps=150, n_coef=6, robust=False, out=None,
-            learning_rate=0.05) -> dict:
+            learning_rate=0.05, verify=False) -> dict:
     started = time.time()
     robot, cycle = robot_preset(preset), cycle_preset(preset)
     ckpt = None
@@ -120,6 +131,12 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, steps=150, n_coef=6, rob
            "provenance": provenance({"preset": preset, "payloads": list(payloads), "tf": tf, "steps": steps,
                                      "n_coef": n_coef, "robust": robust, "learning_rate": learning_rate},
                                     started)}
+    if verify:
+        from jaxflex.profiles import make_profile
+
+        laws = {f"{study.blend}/{study.best_paper} (best paper)": make_profile(study.best_paper),
+                "optimized": shaped(jnp.asarray(study.coef))}
+        rec["verification"] = {f"{m:g} kg": verify_law(robot, cycle, study.blend, laws, m, tf) for m in payloads}
     if out:
         out = Path(out)
         rows = trajectory_rows(robot.replace(payload=payloads[0]), path, shaped(jnp.asarray(study.coef)), tf)
@@ -130,8 +147,8 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, steps=150, n_coef=6, rob
 
 
 def run(preset="default", payloads=(6.0,), tf=0.43, steps=150, n_coef=6, robust=False, out=None,
-        json_path=None, learning_rate=0.05) -> dict:
-    rec = compute(preset, payloads, tf, steps, n_coef, robust, out, learning_rate)
+        json_path=None, learning_rate=0.05, verify=False) -> dict:
+    rec = compute(preset, payloads, tf, steps, n_coef, robust, out, learning_rate, verify)
     print(text(rec))
     if json_path:
         write_json(json_path, rec)

@@ -67,6 +67,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lr", type=float, default=0.05, help="Adam learning rate (default: %(default)s)")
     p.add_argument("--robust", action="store_true",
                    help="train on the perturbed models (E x 0.95/1/1.05, payload x 0.9/1/1.1)")
+    p.add_argument("--verify", action="store_true",
+                   help="re-simulate the best paper law and the optimized one at a quarter step and with "
+                        "the full nonlinear model (RK4, 1e-5 s; a few minutes)")
     p.add_argument("--out", metavar="DIR",
                    help="write optimize.json, trajectory.csv (t,x,y,q1,q2 at 10 kHz), a figure and a "
                         "checkpoint to DIR; rerunning with the same DIR resumes")
@@ -130,7 +133,7 @@ def main(argv=None) -> int:
             from jaxflex.experiments import optimize
 
             optimize.run(args.preset, tuple(args.payload), args.tf, args.steps, args.coef, args.robust,
-                         out=args.out, json_path=args.json, learning_rate=args.lr)
+                         out=args.out, json_path=args.json, learning_rate=args.lr, verify=args.verify)
         elif args.command == "bench":
             from jaxflex.experiments import bench
 

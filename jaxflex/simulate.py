@@ -243,10 +243,12 @@ def _second_order_forcing(robot, x0, frozen, fast_start, fast_end, samples, grid
     fz_b = jax.tree_util.tree_map(lambda a: a[jumps - 1], frozen)
     qdd_jump = jax.vmap(lambda fz, f, x: fz.minv @ (f - fz.c @ x[ne:] - fz.k @ x[:ne]))(fz_b, f_end[before], x_jump)
     rem = jax.vmap(lambda qa, q1, q2, ds, dds, x, qdd: remainder(robot, qa, q1, q2, ds, dds, x, qdd))
-    r_right = rem(fast_start["qa"][first], fast_start["qa1"][first], fast_start["qa2"][first],
-                  samples.start[1][first], samples.start[2][first], x1, qdd1)
-    r_left = rem(fast_end["qa"][before], fast_end["qa1"][before], fast_end["qa2"][before],
-                 samples.end[1][before], samples.end[2][before], x_jump, qdd_jump)
+    cat = lambda a, b: jnp.concatenate([a[first], b[before]])
+    r_all = rem(cat(fast_start["qa"], fast_end["qa"]), cat(fast_start["qa1"], fast_end["qa1"]),
+                cat(fast_start["qa2"], fast_end["qa2"]), cat(samples.start[1], samples.end[1]),
+                cat(samples.start[2], samples.end[2]), jnp.concatenate([x1, x_jump]),
+                jnp.concatenate([qdd1, qdd_jump]))             # one model evaluation site (compile size)
+    r_right, r_left = r_all[:nc], r_all[nc:]
     # end of interval c: the right limit at c + 1 where s'' is continuous, the left limit at jumps
     r_end = jnp.concatenate([r_right[1:], r_left[-1:]]).at[jumps[:-1] - 1].set(r_left[:-1])
     r_start = r_right

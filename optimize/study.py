@@ -120,3 +120,30 @@ def optimize_law(robot: Robot, cycle: Cycle, payloads: Sequence[float] = (6.0,),
     return LawStudy(payloads, tf, blend, law, coef, result, evaluations,
                     {k: s.labels for k, s in sets.items()}, paper, torque_bound, limits, freqs, grid,
                     time.time() - started)
+
+
+def verify_law(robot: Robot, cycle: Cycle, blend: str, laws: dict, payload: float, tf: float, *,
+               dwell: float = 0.1, rk4_dt: float = 1e-5) -> dict:
+    """Independent check of the residual claims: every law (name -> Profile) re-simulated with the
+    fast model at a quarter of the default step and with the full nonlinear model by RK4 at
+    ``rk4_dt`` [s]. Returns law -> {method: dwell residual [mm]}."""
+    from jaxflex.metrics import metrics
+    from jaxflex.reference import reference_rollout
+    from jaxflex.simulate import Grid
+
+    from .baselines import LawEvaluator, model_set
+
+    path = make_path(cycle, blend, 0.025)
+    r = robot.replace(payload=payload)
+    g = default_grid(robot, [tf], dwell)
+    fine = Grid(coarse=4 * g.coarse, fine=g.fine, dwell_steps=4 * g.dwell_steps, squarings=g.squarings)
+    models = model_set(robot, [payload])
+    out = {name: {} for name in laws}
+    for label, grid in (("fast", g), ("fast dt/4", fine)):
+        ev = LawEvaluator(models, path, tf, dwell, grid)
+        for name, law in laws.items():
+            out[name][label] = float(ev(law)["dwell_residual_mm"][0])
+    ref = jax.vmap(metrics)(reference_rollout(r, path, list(laws.values()), tf, dwell, dt=rk4_dt))
+    for i, name in enumerate(laws):
+        out[name][f"full model RK4 {rk4_dt:g} s"] = float(ref["dwell_residual_mm"][i])
+    return out
