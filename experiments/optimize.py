@@ -28,11 +28,15 @@ def trajectory_rows(robot, path, profile, tf: float, rate: float = CSV_RATE_HZ) 
     """(T, 5) rows t [s], x, y [m], q1, q2 [rad] sampled at ``rate`` [Hz] over [0, tf]."""
     t = np.arange(int(round(tf * rate)) + 1) / rate
     t[-1] = min(t[-1], tf)
-    v = profile_eval(profile, jnp.asarray(t / tf))
-    s = v.s * path.length
-    x = task_from_arc(path, s, jnp.zeros_like(s), jnp.zeros_like(s), jnp.zeros_like(s))[0]
-    q = jax.vmap(lambda p: igm(robot, p))(x)
+    x, q = _positions(robot, path, profile, jnp.asarray(t / tf))
     return np.column_stack([t, np.asarray(x), np.asarray(q)])
+
+
+@jax.jit
+def _positions(robot, path, profile, eta):
+    s = profile_eval(profile, eta).s * path.length
+    x = task_from_arc(path, s, jnp.zeros_like(s), jnp.zeros_like(s), jnp.zeros_like(s))[0]
+    return x, jax.vmap(lambda p: igm(robot, p))(x)
 
 
 def write_trajectory_csv(path_out, rows: np.ndarray) -> None:

@@ -31,9 +31,14 @@ from jaxflex.simulate import Grid, MotionSamples, rollout
 RUCKIG_SHAPE = (4.0 / 3.0, 16.0 / 3.0, 16.0 / 3.0 / 0.125)
 
 
+@jax.jit
+def _first_mode_hz(robot: Robot, place):
+    return mdl.locked_modes(robot, igm(robot, place))[0][0]
+
+
 def place_first_mode_hz(robot: Robot, cycle: Cycle) -> float:
     """First locked-motor natural frequency [Hz] at the place pose (payload included)."""
-    return float(mdl.locked_modes(robot, igm(robot, jnp.asarray(cycle.place)))[0][0])
+    return float(_first_mode_hz(robot, jnp.asarray(cycle.place)))
 
 
 def shaper_profiles(base: str, freq_hz: float, tf: float) -> list[Profile]:

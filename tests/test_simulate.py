@@ -92,6 +92,7 @@ def _quasi_static_qe(robot, path, profile, tf, t):
     return x
 
 
+@pytest.mark.slow
 def test_quasi_static_motion_follows_static_compliance(setup):
     """Gravity off, tf = 8 s (forcing << 58 Hz): e(t) equals the static deflection under the
     inertial loads, computed independently from the nonlinear model. The remaining difference is the
@@ -112,6 +113,7 @@ def test_quasi_static_motion_follows_static_compliance(setup):
     assert np.abs(e - np.asarray(qs)).max() < 0.02 * scale
 
 
+@pytest.mark.slow
 def test_torques_tend_to_rigid_inverse_dynamics_as_stiffness_grows(setup):
     """max |tau - tau_rigid| shrinks as E grows; tau_rigid from the independent virtual-power rigid
     model. The quasi-static part of the correction scales like 1/E, but the vibratory part excited by
@@ -163,10 +165,11 @@ def test_second_order_remainder_is_quadratic_and_consistent_with_tables(setup):
     """linearized.remainder is the full model minus its linearization: it must scale as eps^2 with the
     elastic state (ratio 4 when doubled, to O(eps^3)) and vanish against the tables' own linear
     model: R(z) - remainder(z) = R(0) + R'(0) z, whose elastic rows are M q'' + C q' + K q - f."""
-    from jaxflex.linearized import evaluate, pose_coeffs, remainder
+    from jaxflex.linearized import evaluate, remainder
     remainder = jax.jit(remainder)
-    robot, path, _ = setup
-    qa, qa1, qa2 = path_pose(robot, path, 0.5 * path.length)
+    robot, path, tables = setup
+    node = jax.tree_util.tree_map(lambda a: a[60], tables.values)      # a table node in the first blend
+    qa, qa1, qa2 = node.qa, node.qa1, node.qa2
     ds, dds = 1.3, -7.0
     rng = np.random.default_rng(3)
     # amplitudes of the order of the real deflections (the cubic terms of the stiff axial rows stay
@@ -176,7 +179,7 @@ def test_second_order_remainder_is_quadratic_and_consistent_with_tables(setup):
     r2 = remainder(robot, qa, qa1, qa2, ds, dds, 2 * x, 2 * qdd)
     np.testing.assert_allclose(np.asarray(r2) / np.asarray(r1), 4.0, rtol=4e-2)
     # linear part from the tables' coefficients at the same pose
-    m, k, c, f, tq, tv, tr = evaluate(jax.jit(pose_coeffs)(robot, qa, qa1, qa2), ds, dds)
+    m, k, c, f, tq, tv, tr = evaluate(node, ds, dds)
     red = jax.jit(mdl.reduced)(robot, qa, x[:12], qa1 * ds, x[12:])
     full = red.mass @ jnp.concatenate([qa2 * ds**2 + qa1 * dds, qdd]) + red.force
     lin_e = m @ qdd + c @ x[12:] + k @ x[:12] - f
