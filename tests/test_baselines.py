@@ -32,7 +32,8 @@ def test_ruckig_profile_lasts_tf_and_respects_its_limits():
 
 
 def test_model_set_damping_ratio_at_first_mode():
-    robot, cycle = robot_preset("default"), cycle_preset()
+    # one assumed mode per link: the same code path, a smaller program to compile
+    robot, cycle = robot_preset("default", n_bending=1, n_axial=1), cycle_preset()
     ms = model_set(robot, [6.0], damping_ratio=0.01, cycle=cycle)
     beta = float(ms.robots.damping[0, 1])
     f1 = place_first_mode_hz(robot.replace(payload=6.0), cycle)

@@ -142,6 +142,7 @@ def test_torques_tend_to_rigid_inverse_dynamics_as_stiffness_grows(setup):
     assert errs[1] < 0.2 * errs[0]
 
 
+@pytest.mark.slow
 def test_dt_convergence_one_combination(setup):
     """Quartering the step changes every position/torque metric by < 1 % (6 kg, trap_1_8)."""
     robot, path, tables = setup
