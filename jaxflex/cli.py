@@ -57,7 +57,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "minimizing the residual vibration at the place point; compared "
                                    "with the best paper combination, its ZV/ZVD input shaping and a "
                                    "Ruckig jerk-limited profile at equal time, on the nominal, "
-                                   "perturbed (E +-5 %%, payload +-10 %%) and damped models.")
+                                   "perturbed (E +-5 %, payload +-10 %) and damped models.")
     _add_common(p)
     p.add_argument("--payload", type=float, nargs="+", default=[6.0],
                    help="payload mass(es) [kg]; several give one design robust over them (default: 6)")
