@@ -22,7 +22,7 @@ from jaxflex.sweep import PAPER_CASES, Case, default_grid, run_sweep
 
 from .io import table
 
-INSTANT = ("residual_pos_mm", "residual_vel", "residual_acc", "residual_energy")
+INSTANT = ("residual_pos_mm", "residual_vel", "residual_acc", "residual_acc_low", "residual_energy")
 
 
 def _changes(a: np.ndarray, b: np.ndarray):

@@ -157,3 +157,62 @@ def run(preset="default", payloads=(6.0,), tf=0.43, steps=150, n_coef=6, robust=
     if json_path:
         write_json(json_path, rec)
     return rec
+
+
+def cycle_time_record(st) -> dict:
+    """JSON record of a ``CycleTimeStudy``."""
+    return {"payload": st.payload, "tf_ref": st.tf_ref, "blend": st.blend, "target_mm": st.target,
+            "tf_min": st.tf_min, "reduction": st.reduction, "wall_s": st.wall_s,
+            "rows": [{"tf": float(t), "paper_best": pb, "paper_best_mm": float(pr), "optimized_mm": float(o),
+                      "optimized_torque_nm": float(tq), "torque_bound_nm": float(b), "coef": c.tolist()}
+                     for t, pb, pr, o, tq, b, c in zip(st.tfs, st.paper_best, st.paper_residual,
+                                                       st.optimized_residual, st.optimized_torque,
+                                                       st.torque_bound, st.coefs)]}
+
+
+def cycle_time_text(rec: dict) -> str:
+    rows = [[fmt(r["tf"], 4), r["paper_best"], fmt(r["paper_best_mm"], 4), fmt(r["optimized_mm"], 4),
+             fmt(r["optimized_torque_nm"], 4), fmt(r["torque_bound_nm"], 4),
+             "yes" if r["optimized_mm"] <= rec["target_mm"] else "no"] for r in rec["rows"]]
+    verdict = ("no tf in the list reaches it" if rec["tf_min"] is None else
+               f"shortest tf {rec['tf_min']:g} s: {100 * rec['reduction']:.1f} % shorter than {rec['tf_ref']:g} s")
+    return (f"Cycle-time study, {rec['payload']:g} kg, optimized law on the {rec['blend']} path; target: the best "
+            f"paper combination at tf = {rec['tf_ref']:g} s, dwell residual {rec['target_mm']:.4g} mm\n\n"
+            + table(["tf [s]", "best paper", "best paper [mm]", "optimized [mm]", "torque [N m]",
+                     "bound (poly7-Lame) [N m]", "<= target"], rows)
+            + f"\n\n{verdict} (study {rec['wall_s']:.0f} s)")
+
+
+def cycle_time_figure(rec: dict, out_path: Path):
+    import matplotlib.pyplot as plt
+
+    tf = [r["tf"] for r in rec["rows"]]
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.semilogy(tf, [r["paper_best_mm"] for r in rec["rows"]], "o-", label="best of the 12 paper combinations")
+    ax.semilogy(tf, [r["optimized_mm"] for r in rec["rows"]], "s-", label="optimized law")
+    ax.axhline(rec["target_mm"], color="k", ls="--", lw=0.8, label=f"best paper at tf = {rec['tf_ref']:g} s")
+    ax.set(xlabel="motion time tf [s]", ylabel="dwell residual [mm]",
+           title=f"Residual vibration vs cycle time, {rec['payload']:g} kg")
+    ax.legend()
+    save_figure(fig, out_path)
+
+
+def run_cycle_time(preset="default", payload=6.0, tf_ref=0.43, tfs=(0.43, 0.40, 0.37, 0.34, 0.31), steps=150,
+                   n_coef=6, out=None, json_path=None, learning_rate=0.05) -> dict:
+    from jaxflex.optimize.cycle_time import cycle_time_study
+
+    started = time.time()
+    robot, cycle = robot_preset(preset), cycle_preset(preset)
+    st = cycle_time_study(robot, cycle, payload, tf_ref, tfs, n_coef=n_coef, steps=steps,
+                          learning_rate=learning_rate)
+    rec = cycle_time_record(st)
+    rec["provenance"] = provenance({"preset": preset, "payload": payload, "tf_ref": tf_ref, "tfs": list(tfs),
+                                    "steps": steps, "n_coef": n_coef, "learning_rate": learning_rate}, started)
+    print(cycle_time_text(rec))
+    if out:
+        Path(out).mkdir(parents=True, exist_ok=True)
+        cycle_time_figure(rec, Path(out) / "cycle_time.png")
+        write_json(Path(out) / "cycle_time.json", rec)
+    if json_path:
+        write_json(json_path, rec)
+    return rec

@@ -25,6 +25,7 @@ EXTENDED = {"lame_extended": ("lame", 0.0445), "clothoid_extended": ("clothoid",
 NAMES = {"max_torque_nm": "Torque [N m]", "rms_acc_error": "RMS acceleration error [m/s^2]",
          "max_deflection_mm": "Max deflection [mm]", "residual_pos_mm": "Position [mm]",
          "residual_vel": "Velocity [m/s]", "residual_acc": "Acceleration [m/s^2]",
+         "residual_acc_low": "Acceleration of the modes below 1 kHz [m/s^2] (ours only)",
          "dwell_residual_mm": "Dwell residual amplitude [mm]", "residual_energy": "Residual energy [J]"}
 
 
@@ -104,6 +105,12 @@ def compare(ours: dict, paper: dict, metric: str, blends=("lame", "clothoid", "p
             row += [fmt(o, 4), fmt(r, 4), pct(rel_diff(o, r))]
         rows.append(row)
     return f"**{NAMES[metric]}**\n\n" + table(head, rows)
+
+
+def ours_only(ours: dict, metric: str, blends=("lame", "clothoid", "polar")) -> str:
+    """A metric the paper does not report: blends as columns, profiles as rows."""
+    rows = [[p] + [fmt(ours[b][p], 4) for b in blends] for p in PROFILES]
+    return f"**{NAMES[metric]}**\n\n" + table(["profile", *blends], rows)
 
 
 def table11(ext: dict, case0: dict, case_index: int) -> str:

@@ -237,29 +237,33 @@ def _clothoid_frame(coef, d, e, sigma):
 # construction and evaluation
 
 
-def check_blend_args(kind: str, d, e, n) -> None:
-    """Eager validation of blend arguments (skipped for traced values)."""
+def check_blend_args(kind: str, d, e, n, names=("d", "e", "n")) -> None:
+    """Eager validation of blend arguments (skipped for traced values); ``names`` are the parameter
+    names used in the error messages."""
     if kind not in BLENDS:
         raise ValueError(f"unknown blend {kind!r}; choose one of {', '.join(BLENDS)}")
-    for name, val in (("d", d), ("e", e), ("n", n)):
+    nd, ne, nn = names
+    for name, val in ((nd, d), (ne, e), (nn, n)):
         if isinstance(val, jax.core.Tracer):
             continue
         v = np.asarray(val, dtype=float)
+        if v.ndim != 0:
+            raise ValueError(f"blend parameter {name} must be a scalar, got shape {v.shape}")
         if not np.all(np.isfinite(v)):
             raise ValueError(f"blend parameter {name} must be finite, got {val}")
     concrete = lambda x: not isinstance(x, jax.core.Tracer)
     if concrete(d) and np.any(np.asarray(d) <= 0):
-        raise ValueError(f"blend parameter d must be > 0 m, got {d}")
+        raise ValueError(f"blend parameter {nd} must be > 0 m, got {d}")
     if concrete(e) and np.any(np.asarray(e) <= 0):
-        raise ValueError(f"blend parameter e must be > 0 m, got {e}")
+        raise ValueError(f"blend parameter {ne} must be > 0 m, got {e}")
     if kind == "lame" and concrete(n) and np.any(np.asarray(n) < 2):
-        raise ValueError(f"Lamé order n must be >= 2, got {n}")
+        raise ValueError(f"Lamé order {nn} must be >= 2, got {n}")
     if kind == "clothoid" and concrete(d) and concrete(e):
         ratio = float(np.asarray(d) / np.asarray(e))
         lo, hi = 0.43826 / 0.77989, 0.77989 / 0.43826   # S(pi/2)/C(pi/2) and inverse (Fresnel at 1)
         if not lo < ratio < hi:
             raise ValueError(
-                f"no G2 clothoid pair with d/e = {ratio:.3f}: it must lie in ({lo:.3f}, {hi:.3f})")
+                f"no G2 clothoid pair with {nd}/{ne} = {ratio:.3f}: it must lie in ({lo:.3f}, {hi:.3f})")
 
 
 def make_blend(kind: str, d, e, n=3.0) -> Blend:

@@ -73,6 +73,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", metavar="DIR",
                    help="write optimize.json, trajectory.csv (t,x,y,q1,q2 at 10 kHz), a figure and a "
                         "checkpoint to DIR; rerunning with the same DIR resumes")
+    p.add_argument("--cycle-time", nargs="*", type=float, metavar="TF",
+                   help="instead: the cycle-time study for the first payload: optimize at each motion "
+                        "time TF [s] (default: 0.43 0.40 0.37 0.34 0.31) and report the shortest one whose "
+                        "residual is no worse than the best paper combination at --tf; with --out, "
+                        "cycle_time.json and the Pareto figure cycle_time.png")
 
     p = sub.add_parser("bench", help="compile and run times of the batched sweep and of a gradient",
                        description="Benchmarks: compile time and median run time of the 24-rollout "
@@ -132,8 +137,13 @@ def main(argv=None) -> int:
         elif args.command == "optimize":
             from jaxflex.experiments import optimize
 
-            optimize.run(args.preset, tuple(args.payload), args.tf, args.steps, args.coef, args.robust,
-                         out=args.out, json_path=args.json, learning_rate=args.lr, verify=args.verify)
+            if args.cycle_time is not None:
+                tfs = tuple(args.cycle_time) or (0.43, 0.40, 0.37, 0.34, 0.31)
+                optimize.run_cycle_time(args.preset, args.payload[0], args.tf, tfs, args.steps, args.coef,
+                                        out=args.out, json_path=args.json, learning_rate=args.lr)
+            else:
+                optimize.run(args.preset, tuple(args.payload), args.tf, args.steps, args.coef, args.robust,
+                             out=args.out, json_path=args.json, learning_rate=args.lr, verify=args.verify)
         elif args.command == "bench":
             from jaxflex.experiments import bench
 

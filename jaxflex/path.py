@@ -56,6 +56,8 @@ def make_cycle(pick, place, h=0.025, lift=(0.0, 1.0)) -> Cycle:
     lift = np.asarray(lift, dtype=float)
     if pick.shape != (2,) or place.shape != (2,) or lift.shape != (2,):
         raise ValueError("pick, place and lift must be 2-vectors")
+    if np.ndim(h) != 0:
+        raise ValueError(f"lift height h must be a scalar, got shape {np.shape(h)}")
     for name, v in (("pick", pick), ("place", place), ("lift", lift), ("h", h)):
         if not np.all(np.isfinite(v)):
             raise ValueError(f"cycle parameter {name} must be finite, got {v}")
@@ -109,7 +111,7 @@ def _is_concrete(*xs):
 def check_path_args(cycle: Cycle, blend: str, d, e, n, d2, e2, n2) -> None:
     """Eager validation of the blend parameters against the cycle (values that are traced are skipped)."""
     check_blend_args(blend, d, e, n)
-    check_blend_args(blend, d2, e2, n2)
+    check_blend_args(blend, d2, e2, n2, names=("d2", "e2", "n2"))
     if _is_concrete(d, d2, cycle.h):
         h = float(cycle.h)
         for name, v in (("d", d), ("d2", d2)):

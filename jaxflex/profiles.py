@@ -73,7 +73,7 @@ def make_profile(name: str) -> Profile:
     """One of the paper's motion laws by name: ``poly7``, ``bang_bang``, ``trap_1_4``, ``trap_1_8``."""
     if name == "poly7":
         return Profile(ta=jnp.asarray(0.0), coef=jnp.zeros(1), kind="poly7", name=name)
-    if name in _TRAP_FRACTION:
+    if isinstance(name, str) and name in _TRAP_FRACTION:
         return trapezoid(_TRAP_FRACTION[name], name=name)
     raise ValueError(f"unknown motion profile {name!r}; choose one of {', '.join(PROFILES)} "
                      "(or build one with trapezoid(ta) / shaped(coef))")
@@ -81,7 +81,7 @@ def make_profile(name: str) -> Profile:
 
 def trapezoid(ta, name: str | None = None) -> Profile:
     """Trapezoidal velocity law with acceleration time ``ta`` * tf, 0 < ta <= 1/2."""
-    if not isinstance(ta, jax.core.Tracer) and not 0.0 < float(ta) <= 0.5:
+    if not isinstance(ta, jax.core.Tracer) and (np.ndim(ta) != 0 or not 0.0 < float(ta) <= 0.5):
         raise ValueError(f"trapezoid acceleration fraction ta must be in (0, 1/2], got {ta}")
     return Profile(ta=jnp.asarray(ta, dtype=float), coef=jnp.zeros(1), kind="trapezoid",
                    name=name or f"trap_{float(ta):g}")
@@ -94,7 +94,14 @@ def shaped(coef, order: int = 3, name: str = "shaped") -> Profile:
         raise ValueError("shaped profile coefficients must be a non-empty 1-D array")
     if order not in (2, 3):
         raise ValueError(f"shaped profile order must be 2 or 3, got {order}")
-    return Profile(ta=jnp.asarray(0.0), coef=coef, kind="shaped", order=order, name=name)
+    if not isinstance(coef, jax.core.Tracer):
+        c = np.asarray(coef)
+        if not np.all(np.isfinite(c)):
+            raise ValueError(f"shaped profile coefficients must be finite, got {c.tolist()}")
+        if not np.any(c != 0.0):
+            raise ValueError("shaped profile coefficients are all zero: the velocity g^2 vanishes and "
+                             "S cannot be normalized to S(1) = 1")
+    return Profile(ta=jnp.asarray(0.0), coef=coef, kind="shaped", order=int(order), name=name)
 
 
 def input_shaped(base: str, amplitudes, times, name: str | None = None) -> Profile:
@@ -106,6 +113,8 @@ def input_shaped(base: str, amplitudes, times, name: str | None = None) -> Profi
         raise ValueError("impulse amplitudes and times must be 1-D arrays of equal length")
     if not isinstance(ts, jax.core.Tracer):
         t, a = np.asarray(ts), np.asarray(amps)
+        if t.size == 0 or not (np.all(np.isfinite(t)) and np.all(np.isfinite(a))):
+            raise ValueError(f"impulse amplitudes and times must be finite and non-empty, got {a} at {t}")
         if t[0] != 0.0 or np.any(np.diff(t) < 0) or not t[-1] < 1.0:
             raise ValueError(f"impulse times must ascend from 0 and stay below 1 (fractions of tf), got {t}")
         if abs(a.sum() - 1.0) > 1e-12:
@@ -114,8 +123,15 @@ def input_shaped(base: str, amplitudes, times, name: str | None = None) -> Profi
                    times=ts, base=base)
 
 
+def _check_shaper(freq_hz, tf):
+    for name, v in (("mode frequency freq_hz", freq_hz), ("motion time tf", tf)):
+        if not (np.ndim(v) == 0 and np.isfinite(float(v)) and float(v) > 0):
+            raise ValueError(f"shaper {name} must be finite and > 0, got {v}")
+
+
 def zv(base: str, freq_hz: float, tf: float) -> Profile:
     """ZV shaper (two impulses 1/2, half a period apart) for an undamped mode at freq_hz [Hz]."""
+    _check_shaper(freq_hz, tf)
     half = 0.5 / float(freq_hz) / float(tf)
     return input_shaped(base, [0.5, 0.5], [0.0, half], name=f"{base}+ZV")
 
@@ -123,6 +139,7 @@ def zv(base: str, freq_hz: float, tf: float) -> Profile:
 def zvd(base: str, freq_hz: float, tf: float) -> Profile:
     """ZVD shaper (1/4, 1/2, 1/4 at 0, T/2, T) for an undamped mode at freq_hz [Hz]: robust to
     frequency errors (zero derivative of the residual w.r.t. frequency)."""
+    _check_shaper(freq_hz, tf)
     half = 0.5 / float(freq_hz) / float(tf)
     return input_shaped(base, [0.25, 0.5, 0.25], [0.0, half, 2 * half], name=f"{base}+ZVD")
 

@@ -28,7 +28,8 @@ from jaxflex import model as mdl
 from jaxflex.path import Path
 from jaxflex.profiles import Profile, profile_eval
 from jaxflex.robot import Robot, joint_motion
-from jaxflex.simulate import Series
+from jaxflex.linearized import pose_coeffs
+from jaxflex.simulate import Series, low_mode_acceleration
 from jaxflex.trajectory import task_from_arc
 
 
@@ -159,4 +160,10 @@ def _reference(robot, samples, tf, dwell, n, nd):
                   t_dwell=tf + jnp.arange(nd + 1, dtype=float) * hd, e_dwell=yd[:, 0], ed_dwell=yd[:, 1],
                   edd_dwell=yd[:, 2], tau_dwell=yd[:, 3], e_static=e_static, energy_tf=energy,
                   energy_dwell=jnp.stack([energy, energy_end]),
-                  state_tf=x_tf, dt=h, dt_dwell=hd)
+                  state_tf=x_tf, dt=h, dt_dwell=hd, edd_tf_low=_low_modes(robot, qa_place, q_star, x_tf))
+
+
+def _low_modes(robot, qa_place, q_star, x_tf):
+    """Low-mode residual acceleration from the full model's linearization at the place pose."""
+    c = pose_coeffs(robot, qa_place, jnp.zeros(2), jnp.zeros(2))
+    return low_mode_acceleration(c.mass, c.k0, c.c0, c.jx, q_star, x_tf)

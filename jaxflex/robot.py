@@ -145,6 +145,8 @@ def robot_preset(name: str = "default", **overrides) -> Robot:
 def cycle_preset(name: str = "default", h: float = 0.025, l: float = 0.35) -> Cycle:
     """Adept cycle placement of a SPEC 2 preset, centred on the symmetry axis (h, l in m)."""
     _check_name(name)
+    if not (np.ndim(l) == 0 and np.isfinite(float(l)) and float(l) > 0):
+        raise ValueError(f"traverse length l must be finite and > 0 m, got {l}")
     _, _, pick, _, lift = _PRESET_DATA[name]
     y = pick[1]
     return make_cycle((-0.5 * l, y), (0.5 * l, y), h=h, lift=lift)
@@ -260,6 +262,8 @@ def check_reachable(robot: Robot, points, what: str = "pose", margin: float = 1e
     singularity).
     """
     pts = np.atleast_2d(np.asarray(points, dtype=float))
+    if pts.ndim != 2 or pts.shape[1] != 2:
+        raise ValueError(f"{what}: points must have shape (2,) or (N, 2), got {np.shape(points)}")
     if not np.all(np.isfinite(pts)):
         raise ValueError(f"{what}: non-finite coordinates")
     rep = pose_report(robot, pts)

@@ -46,6 +46,8 @@ def check_tf(tf) -> None:
     if isinstance(tf, jax.core.Tracer):
         return
     v = np.asarray(tf, dtype=float)
+    if v.ndim != 0:
+        raise ValueError(f"motion time tf must be a scalar, got shape {v.shape}")
     if not np.all(np.isfinite(v)) or np.any(v <= 0):
         raise ValueError(f"motion time tf must be finite and > 0 s, got {tf}")
 
@@ -53,13 +55,14 @@ def check_tf(tf) -> None:
 def time_grid(tf: float, steps: int) -> jax.Array:
     """Uniform grid of ``steps`` + 1 instants over [0, tf] [s]."""
     check_tf(tf)
-    if int(steps) < 1:
-        raise ValueError(f"number of time steps must be >= 1, got {steps}")
+    if not (np.ndim(steps) == 0 and np.isfinite(float(steps)) and float(steps) == int(steps) >= 1):
+        raise ValueError(f"number of time steps must be >= 1 (an integer), got {steps}")
     return jnp.linspace(0.0, tf, int(steps) + 1)
 
 
 def arc_motion(path: Path, profile: Profile, tf, t):
     """Arc length s(t) = L S(t/tf) and its first three time derivatives, each shaped like t."""
+    check_tf(tf)
     law = time_scaled(profile_eval(profile, t / tf), tf)
     length = path.length
     return law.s * length, law.ds * length, law.dds * length, law.ddds * length
@@ -79,7 +82,14 @@ def task_from_arc(path: Path, s, ds, dds, ddds):
 
 
 def trajectory(robot: Robot, path: Path, profile: Profile, tf, t) -> Trajectory:
-    """Sample one trajectory at the instants t (T,) [s] of a motion lasting tf [s]."""
+    """Sample one trajectory at the instants t (T,) [s] of a motion lasting tf [s].
+
+    Concrete inputs are validated first (tf > 0, the cycle reachable without singularity), so a bad
+    input raises a ValueError instead of returning NaN; traced inputs (under jit/vmap) are not."""
+    check_tf(tf)
+    leaves = jax.tree_util.tree_leaves((robot, path.cycle))
+    if not any(isinstance(v, jax.core.Tracer) for v in leaves):
+        check_cycle_reachable(robot, path.cycle)
     s, ds, dds, ddds = arc_motion(path, profile, tf, t)
     x, xd, xdd, xddd = task_from_arc(path, s, ds, dds, ddds)
     q, qd, qdd = jax.vmap(joint_motion, in_axes=(None, 0, 0, 0))(robot, x, xd, xdd)

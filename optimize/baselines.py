@@ -130,16 +130,18 @@ class LawEvaluator:
         self.models, self.path, self.tf, self.dwell, self.grid = models, path, tf, dwell, grid
         self.tables = jax.jit(jax.vmap(build_tables, (0, None)))(models.robots, path)
 
-    def samples(self, profile: Profile) -> MotionSamples:
+    def samples(self, profile: Profile, tf: float | None = None) -> MotionSamples:
         from jaxflex.simulate import motion_samples
 
-        return motion_samples(self.path.length, profile, self.tf, self.grid)
+        return motion_samples(self.path.length, profile, self.tf if tf is None else tf, self.grid)
 
-    def __call__(self, law) -> dict:
-        """law: a Profile or MotionSamples -> metrics dict name -> (K,) numpy arrays."""
-        samples = law if isinstance(law, MotionSamples) else self.samples(law)
-        out = _law_metrics(self.tables, self.models.robots, samples, jnp.asarray(self.tf),
-                           jnp.asarray(self.dwell), self.grid)
+    def __call__(self, law, tf: float | None = None) -> dict:
+        """law: a Profile or MotionSamples -> metrics dict name -> (K,) numpy arrays. ``tf`` [s]
+        overrides the motion time (same grid, no recompilation; MotionSamples must match it)."""
+        tf = self.tf if tf is None else tf
+        samples = law if isinstance(law, MotionSamples) else self.samples(law, tf)
+        out = _law_metrics(self.tables, self.models.robots, samples, jnp.asarray(tf, dtype=float),
+                           jnp.asarray(self.dwell, dtype=float), self.grid)
         out = {k: np.asarray(v) for k, v in out.items()}
         bad = [k for k, v in out.items() if not np.all(np.isfinite(v))]
         if bad:

@@ -11,6 +11,7 @@ state, the history and the step; a rerun with the same checkpoint path resumes f
 """
 from __future__ import annotations
 
+import functools
 import os
 import time
 from pathlib import Path
@@ -66,27 +67,40 @@ def _load(path: Path, params, opt_state):
             int(z["step"]), rebuild(params, "b"), float(z["best_value"]))
 
 
-def minimize(f: Callable, params0, *, steps: int = 100, learning_rate: float = 0.05,
+def _optimizer(learning_rate: float):
+    return optax.chain(optax.clip_by_global_norm(10.0), optax.adam(learning_rate))
+
+
+def _value_and_grad(f: Callable, args, mode: str):
+    g = lambda p: f(p, *args)
+    return value_and_grad_fwd(g) if mode == "forward" else jax.value_and_grad(g, has_aux=True)
+
+
+@functools.partial(jax.jit, static_argnames=("f", "learning_rate", "mode"))
+def _update(params, state, args, *, f, learning_rate, mode):
+    """One Adam step. Module level with f static: calls with the same f (the same object) and new
+    ``args`` values of the same shapes reuse one compilation (e.g. a sweep over tf or payloads)."""
+    (value, aux), grad = _value_and_grad(f, args, mode)(params)
+    with jax.numpy_dtype_promotion("standard"):     # optax mixes Python floats and int32 counts
+        upd, state = _optimizer(learning_rate).update(grad, state, params)
+    return optax.apply_updates(params, upd), state, value, aux
+
+
+def minimize(f: Callable, params0, *, args: tuple = (), steps: int = 100, learning_rate: float = 0.05,
              checkpoint: str | Path | None = None, patience: int = 25, rel_tol: float = 1e-3,
              target: float | None = None, progress: bool = True, label: str = "optimize",
              mode: str = "reverse") -> OptResult:
-    """Minimize f(params) -> (value, aux) with Adam.
+    """Minimize f(params, *args) -> (value, aux) with Adam.
 
-    Stops after ``steps`` updates, when the best value has not improved by a relative ``rel_tol``
-    for ``patience`` steps, or when it falls below ``target``. Returns the best parameters seen.
-    ``mode``: "reverse" or "forward" autodiff for the gradient."""
+    ``args`` are traced (pytrees of arrays): reuse the same function f with new ``args`` values to
+    avoid recompiling. Stops after ``steps`` updates, when the best value has not improved by a
+    relative ``rel_tol`` for ``patience`` steps, or when it falls below ``target``. Returns the best
+    parameters seen. ``mode``: "reverse" or "forward" autodiff for the gradient."""
     if mode not in ("reverse", "forward"):
         raise ValueError(f"mode must be 'reverse' or 'forward', got {mode!r}")
-    opt = optax.chain(optax.clip_by_global_norm(10.0), optax.adam(learning_rate))
-    vg = value_and_grad_fwd(f) if mode == "forward" else jax.value_and_grad(f, has_aux=True)
-
-    @jax.jit
-    def update(params, state):
-        (value, aux), grad = vg(params)
-        with jax.numpy_dtype_promotion("standard"):     # optax mixes Python floats and int32 counts
-            upd, state = opt.update(grad, state, params)
-        return optax.apply_updates(params, upd), state, value, aux
-
+    learning_rate = float(learning_rate)
+    opt = _optimizer(learning_rate)
+    update = functools.partial(_update, f=f, learning_rate=learning_rate, mode=mode)
     params, state = params0, opt.init(params0)
     history, step, best, best_value, best_aux = [], 0, params0, np.inf, None
     ckpt = Path(checkpoint) if checkpoint else None
@@ -96,7 +110,7 @@ def minimize(f: Callable, params0, *, steps: int = 100, learning_rate: float = 0
             print(f"  {label}: resumed at step {step} (best {best_value:.4g})", flush=True)
     started, last_gain, stopped = time.perf_counter(), step, "steps"
     while step < steps:
-        new_params, state, value, aux = update(params, state)
+        new_params, state, value, aux = update(params, state, args)
         value = float(value)
         if not np.isfinite(value):
             raise FloatingPointError(f"{label}: non-finite objective at step {step}")
@@ -120,6 +134,6 @@ def minimize(f: Callable, params0, *, steps: int = 100, learning_rate: float = 0
     if ckpt:
         _save(ckpt, params, state, history, step, best, best_value)
     if best_aux is None:                       # resumed at the end: evaluate the best once
-        (best_value, best_aux), _ = jax.jit(vg)(best)
+        (best_value, best_aux), _ = jax.jit(_value_and_grad(f, args, mode))(best)
         best_value = float(best_value)
     return OptResult(best, best_value, best_aux, history, step, stopped, time.perf_counter() - started)

@@ -14,6 +14,7 @@
 """
 from __future__ import annotations
 
+import functools
 import time
 from typing import NamedTuple, Sequence
 
@@ -108,11 +109,8 @@ def optimize_law(robot: Robot, cycle: Cycle, payloads: Sequence[float] = (6.0,),
     amp_ref = ref["dwell_residual_mm"] * 1e-3
     scales = Scales(energy=jnp.asarray(ref["residual_energy"]), dwell_ms=jnp.asarray(amp_ref**2 / 2),
                     torque_bound=bound)
-    robots = train.models.robots
-    objective = lambda coef: law_objective(coef, train.tables, path.length, tf, dwell, grid, scales,
-                                           robots=robots)
-    result = minimize(objective, jnp.ones(n_coef), steps=steps, learning_rate=learning_rate,
-                      checkpoint=checkpoint, patience=40, progress=progress, label="law")
+    result = train_law(train, path, tf, scales, jnp.ones(n_coef), steps=steps, learning_rate=learning_rate,
+                       checkpoint=checkpoint, progress=progress)
     coef = np.asarray(result.params)
     laws["optimized"] = shaped(jnp.asarray(coef), name="optimized")
     evaluations = {name: {k: ev(p) for k, p in laws.items()} for name, ev in evaluators.items()}
@@ -120,6 +118,27 @@ def optimize_law(robot: Robot, cycle: Cycle, payloads: Sequence[float] = (6.0,),
     return LawStudy(payloads, tf, blend, law, coef, result, evaluations,
                     {k: s.labels for k, s in sets.items()}, paper, torque_bound, limits, freqs, grid,
                     time.time() - started)
+
+
+@functools.lru_cache(maxsize=None)
+def _training_objective(grid: Grid, order: int = 3):
+    """The law objective for one grid, as one function object per grid (so that ``minimize``
+    compiles once for every tf, payload set and scale of the same shapes)."""
+    def f(coef, tables, length, tf, dwell, scales, robots):
+        return law_objective(coef, tables, length, tf, dwell, grid, scales, order=order, robots=robots)
+    return f
+
+
+def train_law(train: LawEvaluator, path, tf: float, scales: Scales, init, *, steps: int = 150,
+              learning_rate: float = 0.05, checkpoint=None, progress: bool = True,
+              patience: int = 40) -> OptResult:
+    """Optimize the shaped-law coefficients (start ``init`` (m + 1,)) on the training models of
+    ``train`` at motion time tf [s] with the normalization ``scales``."""
+    f = _training_objective(train.grid)
+    args = (train.tables, jnp.asarray(path.length), jnp.asarray(tf, dtype=float),
+            jnp.asarray(train.dwell, dtype=float), scales, train.models.robots)
+    return minimize(f, jnp.asarray(init, dtype=float), args=args, steps=steps, learning_rate=learning_rate,
+                    checkpoint=checkpoint, patience=patience, progress=progress, label=f"law tf={tf:g}")
 
 
 def verify_law(robot: Robot, cycle: Cycle, blend: str, laws: dict, payload: float, tf: float, *,

@@ -57,6 +57,25 @@ def test_undamped_dwell_energy_is_constant(setup):
     assert np.ptp(en) / en.mean() < 1e-9
 
 
+def test_low_mode_acceleration_is_a_modal_truncation_of_the_dwell_acceleration(setup):
+    """With no cut-off the modal expansion reproduces e''(tf) of the dwell exactly (to round-off);
+    with the 1 kHz cut-off it drops the kHz axial modes (a truncation: a different value)."""
+    from jaxflex.linearized import interpolate
+    from jaxflex.simulate import low_mode_acceleration
+    robot, path, tables = setup
+    out = _run(tables, path, "trap_1_8", 0.43, GRID)
+    rest = interpolate(tables, tables.breaks[-1])
+    q_star = jnp.linalg.solve(rest.k0, rest.f0)
+    full = low_mode_acceleration(rest.mass, rest.k0, rest.c0, rest.jx, q_star, out.state_tf, cutoff_hz=1e9)
+    np.testing.assert_allclose(np.asarray(full), np.asarray(out.edd_dwell[0]), rtol=1e-7,
+                               atol=1e-9 * float(np.abs(out.edd_dwell[0]).max()))
+    np.testing.assert_allclose(np.asarray(out.edd_tf_low), np.asarray(
+        low_mode_acceleration(rest.mass, rest.k0, rest.c0, rest.jx, q_star, out.state_tf)), rtol=1e-9)
+    low, total = np.asarray(out.edd_tf_low), np.asarray(out.edd_dwell[0])
+    assert np.linalg.norm(low) > 0.0
+    assert np.linalg.norm(low - total) > 1e-6 * np.linalg.norm(total)
+
+
 def test_dwell_vibrates_at_locked_natural_frequency(setup):
     """Residual vibration after the motion rings at the first locked-motor frequency of the place
     pose (6 kg: ~58 Hz); spectral resolution 1 / 1 s."""
