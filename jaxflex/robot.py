@@ -122,7 +122,8 @@ def make_robot(a=0.10, modes=(1, -1), *, l1=0.24, l2=0.38079, diameter=0.035, rh
     if assembly is None:
         if reference_point is None:
             raise ValueError("give either assembly (+1/-1) or a reference_point to deduce it")
-        check_reachable(robot, np.asarray(reference_point, dtype=float)[None], "reference point")
+        check_reachable(robot, np.asarray(reference_point, dtype=float)[None], "reference point",
+                        assembly=False)
         q = np.asarray(igm(robot, jnp.asarray(reference_point, dtype=float)))
         elbows = np.asarray(robot.bases) + float(robot.l1) * np.stack([np.cos(q), np.sin(q)], -1)
         u, w = elbows[1] - elbows[0], np.asarray(reference_point) - elbows[0]
@@ -254,12 +255,15 @@ def pose_report(robot: Robot, points) -> dict:
     return {"c": np.stack(cs, axis=1), "distal_sine": sine, "q": q}
 
 
-def check_reachable(robot: Robot, points, what: str = "pose", margin: float = 1e-3) -> None:
+def check_reachable(robot: Robot, points, what: str = "pose", margin: float = 1e-3,
+                    assembly: bool = True) -> None:
     """Raise ValueError naming the first point that an arm cannot reach or that is (near) singular.
 
     ``margin`` bounds |c| <= 1 - margin for the IGM acos argument (serial singularity: proximal and
     distal link aligned) and |sin| >= margin for the angle between the distal links (parallel
-    singularity).
+    singularity). With ``assembly`` (default) a point must also lie in the robot's assembly mode (the
+    sign of that sine): in the other mode the DGM of its IGM is another point, and the robot could
+    only get there through a parallel singularity.
     """
     pts = np.atleast_2d(np.asarray(points, dtype=float))
     if pts.ndim != 2 or pts.shape[1] != 2:
@@ -286,6 +290,10 @@ def check_reachable(robot: Robot, points, what: str = "pose", margin: float = 1e
         if abs(rep["distal_sine"][k]) < margin:
             raise ValueError(f"{what} ({p[0]:.4f}, {p[1]:.4f}) m is at a parallel singularity: the "
                              f"distal links are (nearly) aligned (sin = {rep['distal_sine'][k]:.2e})")
+        if assembly and np.sign(rep["distal_sine"][k]) != robot.assembly:
+            raise ValueError(f"{what} ({p[0]:.4f}, {p[1]:.4f}) m is in assembly mode "
+                             f"{-robot.assembly:+d}, not the robot's {robot.assembly:+d}: it is reached "
+                             "only through a parallel singularity (distal links aligned)")
 
 
 def check_cycle_reachable(robot: Robot, cycle: Cycle, samples: int = 200) -> None:

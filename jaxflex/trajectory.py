@@ -89,7 +89,8 @@ def trajectory(robot: Robot, path: Path, profile: Profile, tf, t) -> Trajectory:
     check_tf(tf)
     leaves = jax.tree_util.tree_leaves((robot, path.cycle))
     if not any(isinstance(v, jax.core.Tracer) for v in leaves):
-        check_cycle_reachable(robot, path.cycle)
+        with jax.ensure_compile_time_eval():     # concrete even inside a jit that closes over them
+            check_cycle_reachable(robot, path.cycle)
     s, ds, dds, ddds = arc_motion(path, profile, tf, t)
     x, xd, xdd, xddd = task_from_arc(path, s, ds, dds, ddds)
     q, qd, qdd = jax.vmap(joint_motion, in_axes=(None, 0, 0, 0))(robot, x, xd, xdd)
