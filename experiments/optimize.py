@@ -112,6 +112,27 @@ def figure(study, robot, path, out_dir: Path):
     save_figure(fig, out_dir / "optimized_law.png")
 
 
+def error_figure(study, out_path: Path, payload_index: int = 0):
+    """End-effector error |e| [mm] during the motion and |e - e_static| over the dwell, per law
+    (nominal model of the first payload)."""
+    import matplotlib.pyplot as plt
+
+    k = payload_index
+    fig, (a, b) = plt.subplots(1, 2, figsize=(12, 4.2))
+    for i, (name, law) in enumerate(study.laws.items()):
+        s = study.nominal.series(law)
+        e = np.linalg.norm(np.asarray(s.e[k]), axis=-1) * 1e3
+        ed = np.linalg.norm(np.asarray(s.e_dwell[k] - s.e_static[k][None]), axis=-1) * 1e3
+        style = dict(lw=1.6, color="k") if name == "optimized" else dict(lw=0.9, color=f"C{i}")
+        a.plot(np.asarray(s.t[k]), e, label=name, **style)
+        b.semilogy(np.asarray(s.t_dwell[k]), np.maximum(ed, 1e-7), **style)
+    a.set(xlabel="t [s]", ylabel="|e| [mm]", title="end-effector error during the motion")
+    b.set(xlabel="t [s]", ylabel="|e - e_static| [mm]", title="residual vibration in the dwell")
+    a.legend(fontsize=7)
+    fig.suptitle(f"{study.payloads[k]:g} kg, tf = {study.tf:g} s, {study.blend} path")
+    save_figure(fig, out_path)
+
+
 def compute(preset="default", payloads=(6.0,), tf=0.43, steps=150, n_coef=6, robust=False, out=None,
             learning_rate=0.05, verify=False) -> dict:
     started = time.time()
@@ -146,6 +167,7 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, steps=150, n_coef=6, rob
         rows = trajectory_rows(robot.replace(payload=payloads[0]), path, shaped(jnp.asarray(study.coef)), tf)
         write_trajectory_csv(out / "trajectory.csv", rows)
         figure(study, robot, path, out)
+        error_figure(study, out / "error_series.png")
         write_json(out / "optimize.json", rec)
     return rec
 

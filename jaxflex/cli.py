@@ -94,6 +94,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="output directory (default: %(default)s)")
     p.add_argument("--no-vibration", dest="vibration", action="store_false",
                    help="skip the vibration study (Tables 7-11, Fig. 12, convergence checks)")
+    p.add_argument("--no-optimize", dest="optimize", action="store_false",
+                   help="skip the optimization study (beyond the paper: optimized motion laws vs the "
+                        "baselines, cycle-time study; about 15 minutes)")
     p.add_argument("--quick", action="store_true",
                    help="coarser grids and fewer points, no convergence or full-model checks: a fast "
                         "smoke run (not for publication)")
@@ -151,7 +154,7 @@ def main(argv=None) -> int:
         elif args.command == "reproduce":
             from jaxflex.experiments import reproduce
 
-            reproduce.run(args.out, quick=args.quick, vibration=args.vibration)
+            reproduce.run(args.out, quick=args.quick, vibration=args.vibration, optimize=args.optimize)
     except ValueError as err:
         print(f"jaxflex {args.command}: error: {err}", file=sys.stderr)
         return 2

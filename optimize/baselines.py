@@ -120,6 +120,14 @@ def _law_metrics(tables, robots, samples, tf, dwell, grid):
     return jax.vmap(lambda tab, r: metrics(rollout(tab, samples, tf, dwell, grid, r)))(tables, robots)
 
 
+@functools.partial(jax.jit, static_argnames=("grid",))
+def _law_series(tables, robots, samples, tf, dwell, grid):
+    return jax.vmap(lambda tab, r: rollout(tab, samples, tf, dwell, grid, r))(tables, robots)
+
+
+_model_tables = jax.jit(jax.vmap(build_tables, (0, None)))    # one compilation per model-set size
+
+
 class LawEvaluator:
     """Metrics of any motion law along one path on a set of models (second-order fast model).
 
@@ -128,12 +136,19 @@ class LawEvaluator:
 
     def __init__(self, models: ModelSet, path: Path, tf: float, dwell: float, grid: Grid):
         self.models, self.path, self.tf, self.dwell, self.grid = models, path, tf, dwell, grid
-        self.tables = jax.jit(jax.vmap(build_tables, (0, None)))(models.robots, path)
+        self.tables = _model_tables(models.robots, path)
 
     def samples(self, profile: Profile, tf: float | None = None) -> MotionSamples:
         from jaxflex.simulate import motion_samples
 
         return motion_samples(self.path.length, profile, self.tf if tf is None else tf, self.grid)
+
+    def series(self, law, tf: float | None = None):
+        """The simulation ``Series`` of a law on every model (leading axis K)."""
+        tf = self.tf if tf is None else tf
+        samples = law if isinstance(law, MotionSamples) else self.samples(law, tf)
+        return _law_series(self.tables, self.models.robots, samples, jnp.asarray(tf, dtype=float),
+                           jnp.asarray(self.dwell, dtype=float), self.grid)
 
     def __call__(self, law, tf: float | None = None) -> dict:
         """law: a Profile or MotionSamples -> metrics dict name -> (K,) numpy arrays. ``tf`` [s]

@@ -55,6 +55,8 @@ class LawStudy(NamedTuple):
     first_mode_hz: tuple
     grid: Grid
     wall_s: float
+    laws: dict                  # name -> Profile or MotionSamples (every law evaluated)
+    nominal: LawEvaluator       # the nominal models' evaluator (time series: ``nominal.series(law)``)
 
 
 def paper_best(robot: Robot, cycle: Cycle, payloads, tf, dwell, grid):
@@ -117,7 +119,7 @@ def optimize_law(robot: Robot, cycle: Cycle, payloads: Sequence[float] = (6.0,),
     paper = {k: np.asarray(v) for k, v in res.metrics.items()}
     return LawStudy(payloads, tf, blend, law, coef, result, evaluations,
                     {k: s.labels for k, s in sets.items()}, paper, torque_bound, limits, freqs, grid,
-                    time.time() - started)
+                    time.time() - started, laws, evaluators["nominal"])
 
 
 @functools.lru_cache(maxsize=None)
