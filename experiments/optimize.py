@@ -17,6 +17,7 @@ from jaxflex.path import make_path
 from jaxflex.profiles import profile_eval, shaped
 from jaxflex.robot import cycle_preset, igm, robot_preset
 from jaxflex.trajectory import task_from_arc
+from jaxflex.optimize.cycle_time import TORQUE_TOL
 from jaxflex.optimize.study import optimize_law, verify_law
 
 from .io import atomic_path, fmt, provenance, save_figure, table, write_json
@@ -195,13 +196,14 @@ def cycle_time_record(st) -> dict:
 def cycle_time_text(rec: dict) -> str:
     rows = [[fmt(r["tf"], 4), r["paper_best"], fmt(r["paper_best_mm"], 4), fmt(r["optimized_mm"], 4),
              fmt(r["optimized_torque_nm"], 4), fmt(r["torque_bound_nm"], 4),
-             "yes" if r["optimized_mm"] <= rec["target_mm"] else "no"] for r in rec["rows"]]
+             "yes" if r["optimized_mm"] <= rec["target_mm"] else "no",
+             "yes" if r["optimized_torque_nm"] <= TORQUE_TOL * r["torque_bound_nm"] else "NO"] for r in rec["rows"]]
     verdict = ("no tf in the list reaches it" if rec["tf_min"] is None else
                f"shortest tf {rec['tf_min']:g} s: {100 * rec['reduction']:.1f} % shorter than {rec['tf_ref']:g} s")
     return (f"Cycle-time study, {rec['payload']:g} kg, optimized law on the {rec['blend']} path; target: the best "
             f"paper combination at tf = {rec['tf_ref']:g} s, dwell residual {rec['target_mm']:.4g} mm\n\n"
             + table(["tf [s]", "best paper", "best paper [mm]", "optimized [mm]", "torque [N m]",
-                     "bound (poly7-Lame) [N m]", "<= target"], rows)
+                     "bound (poly7-Lame) [N m]", "<= target", "torque <= bound"], rows)
             + f"\n\n{verdict} (study {rec['wall_s']:.0f} s)")
 
 

@@ -35,6 +35,7 @@ from .objective import Scales, law_objective
 PERTURB_E = (0.95, 1.0, 1.05)
 PERTURB_PAYLOAD = (0.9, 1.0, 1.1)
 DAMPING_RATIO = 0.01
+TORQUE_WEIGHT = 1e3     # penalty weight on (peak torque / bound - 1)^2: 1 % excess costs 0.1
 
 
 class LawStudy(NamedTuple):
@@ -123,11 +124,12 @@ def optimize_law(robot: Robot, cycle: Cycle, payloads: Sequence[float] = (6.0,),
 
 
 @functools.lru_cache(maxsize=None)
-def _training_objective(grid: Grid, order: int = 3):
+def _training_objective(grid: Grid, order: int = 3, torque_weight: float = TORQUE_WEIGHT):
     """The law objective for one grid, as one function object per grid (so that ``minimize``
     compiles once for every tf, payload set and scale of the same shapes)."""
     def f(coef, tables, length, tf, dwell, scales, robots):
-        return law_objective(coef, tables, length, tf, dwell, grid, scales, order=order, robots=robots)
+        return law_objective(coef, tables, length, tf, dwell, grid, scales, order=order, robots=robots,
+                             torque_weight=torque_weight)
     return f
 
 
