@@ -49,6 +49,26 @@ def write_json(path, data) -> None:
     write_text(path, json.dumps(data, indent=2, default=_default) + "\n")
 
 
+def resumable(path, key: dict, compute, label: str = ""):
+    """Result of ``compute()`` cached as JSON at ``path``: a rerun with the same ``key`` (e.g. version
+    and parameters) loads it instead of recomputing, so an interrupted job resumes from its last
+    finished section. The file is written atomically; the value returned is always the JSON form
+    (the same on a fresh and a resumed run)."""
+    path = Path(path)
+    if path.exists():
+        try:
+            data = json.loads(path.read_text())
+        except json.JSONDecodeError:
+            data = None
+        if isinstance(data, dict) and data.get("resume_key") == key:
+            print(f"  {label or path.name}: resumed from {path}", flush=True)
+            return data
+    data = dict(compute())
+    data["resume_key"] = key
+    write_json(path, data)
+    return json.loads(path.read_text())
+
+
 def save_figure(fig, path, dpi: int = 130) -> None:
     """Save a matplotlib figure atomically and close it."""
     import matplotlib.pyplot as plt

@@ -12,7 +12,7 @@ import numpy as np
 
 from . import convergence, kinematics, modes, vibration
 from . import vibration as vibration_study
-from .io import provenance, table, write_json, write_text
+from .io import provenance, resumable, table, write_json, write_text
 
 
 def run(out: str = "results", quick: bool = False, vibration: bool = True, optimize: bool = True) -> dict:
@@ -23,6 +23,8 @@ def run(out: str = "results", quick: bool = False, vibration: bool = True, optim
     for both paper cases (resumable: checkpoints in DIR/optimize_*) and the cycle-time study."""
     with_vibration = vibration
     started = time.time()
+    from jaxflex import __version__
+    key = {"jaxflex_version": __version__, "quick": quick}     # sections computed with these resume
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     fig_dir = out / "figures"
@@ -57,20 +59,20 @@ def run(out: str = "results", quick: bool = False, vibration: bool = True, optim
 
     if with_vibration:
         print("== vibration study (paper Section 4: Tables 7-11, Fig. 12)", flush=True)
-        vib = vibration_study.compute(quick=quick)
+        vib = resumable(out / "vibration.json", key, lambda: vibration_study.compute(quick=quick), "vibration")
         results["vibration"] = vib
-        write_json(out / "vibration.json", vib)
         sections.append(_vibration_section(vib, fig_dir, out))
         if not quick:
             print("== step convergence and full-model cross-check", flush=True)
-            conv = {"dt": convergence.dt_study(), "reference": convergence.reference_study()}
+            conv = {"dt": resumable(out / "convergence_dt.json", key, convergence.dt_study, "dt study"),
+                    "reference": resumable(out / "convergence_reference.json", key,
+                                           convergence.reference_study, "full-model check")}
             results["convergence"] = conv
-            write_json(out / "convergence.json", conv)
             sections.append(_convergence_section(conv))
 
     if optimize:
         print("== optimization study (beyond the paper)", flush=True)
-        results["optimize"] = _optimization(out, quick)
+        results["optimize"] = _optimization(out, quick, key)
         sections.append(_optimization_section(results["optimize"], out))
 
     prov = provenance({"out": str(out), "quick": quick}, started)
@@ -89,17 +91,22 @@ def run(out: str = "results", quick: bool = False, vibration: bool = True, optim
 OPT_CASES = ((6.0, 0.43), (0.1, 0.3))
 
 
-def _optimization(out: Path, quick: bool) -> dict:
+def _optimization(out: Path, quick: bool, key: dict) -> dict:
+    """Each study resumes: a finished one from its JSON, an interrupted optimization from its
+    checkpoint."""
     from . import optimize as opt
 
     steps = 30 if quick else 150
     res = {"cases": []}
     for m, tf in OPT_CASES:
         d = out / f"optimize_{m:g}kg"
-        rec = opt.compute(payloads=(m,), tf=tf, steps=steps, out=str(d), verify=not quick)
+        rec = resumable(d / "study.json", key, lambda: opt.compute(payloads=(m,), tf=tf, steps=steps, out=str(d),
+                                                                   verify=not quick), f"optimization {m:g} kg")
         res["cases"].append({"dir": d.relative_to(out).as_posix(), "text": opt.text(rec), "record": rec})
     tfs = (0.43, 0.37) if quick else (0.43, 0.40, 0.37, 0.34, 0.31)
-    ct = opt.run_cycle_time(payload=6.0, tf_ref=0.43, tfs=tfs, steps=steps, out=str(out / "cycle_time"))
+    ct = resumable(out / "cycle_time" / "study.json", key,
+                   lambda: opt.run_cycle_time(payload=6.0, tf_ref=0.43, tfs=tfs, steps=steps,
+                                              out=str(out / "cycle_time")), "cycle-time study")
     res["cycle_time"] = {"dir": "cycle_time", "text": opt.cycle_time_text(ct), "record": ct}
     return res
 

@@ -62,7 +62,7 @@ def compute(quick: bool = False) -> dict:
     for label, (blend, e) in EXTENDED.items():
         print(f"  extended blend {label} (d = 25 mm, e = {e * 1e3:g} mm) ...", flush=True)
         r = run_sweep(robot, cycle, PAPER_CASES, d=0.025, e=e, blends=(blend,), dt=dt)
-        ext[label] = {k: {m: {p: float(r.metrics[m][0, j, k]) for j, p in enumerate(r.profiles)}
+        ext[label] = {str(k): {m: {p: float(r.metrics[m][0, j, k]) for j, p in enumerate(r.profiles)}
                           for m in METRICS} for k in range(len(PAPER_CASES))}
     out["extended"] = ext
     # Fig. 12 series (6 kg case) and dwell spectra
@@ -122,9 +122,9 @@ def table11(ext: dict, case0: dict, case_index: int) -> str:
         for i, p in enumerate(PROFILES):
             row = [p]
             for k, c in enumerate(cols):
-                o = case0[m][c][p] if c in ("lame", "clothoid") else ext[c][case_index][m][p]
+                o = case0[m][c][p] if c in ("lame", "clothoid") else ext[c][str(case_index)][m][p]
                 row += [fmt(o, 4), fmt(paper_data.TABLE11[m][p][k], 4)]
-            row.append(fmt(ext["lame_e125"][case_index][m][p], 4))
+            row.append(fmt(ext["lame_e125"][str(case_index)][m][p], 4))
             rows.append(row)
         out.append(f"**{NAMES[m]}**\n\n" + table(head, rows))
     return "\n\n".join(out)
