@@ -76,9 +76,11 @@ def pose_coeffs(robot: Robot, qa, qa1, qa2) -> Coeffs:
         return residual(z0, qad, qadd), jax.jacfwd(residual)(z0, qad, qadd)
 
     zero2 = jnp.zeros(2)
-    r00, j00 = at(zero2, zero2)
-    r10, j10 = at(qa1, qa2)          # s' = 1, s'' = 0
-    r01, j01 = at(zero2, qa1)        # s' = 0, s'' = 1
+    # (s', s'') = (0, 0), (1, 0), (0, 1): one vmapped trace of the model (a third of the compile time)
+    qads = jnp.stack([zero2, qa1, zero2])
+    qadds = jnp.stack([zero2, qa2, qa1])
+    rs, js = jax.vmap(at)(qads, qadds)
+    (r00, r10, r01), (j00, j10, j01) = rs, js
     m = mdl.reduced(robot, qa, zero_e, zero2, zero_e).mass
     e, a = slice(2, None), slice(0, 2)
     q, v = slice(0, ne), slice(ne, None)
