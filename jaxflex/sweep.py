@@ -99,6 +99,32 @@ def _rollouts(values, breaks, lengths, tfs, dwell, robots, profiles, grid, with_
 _rollouts_jit = jax.jit(_rollouts, static_argnames=("profiles", "grid", "with_series"))
 
 
+def _stacked_tables(robot, cycle, payloads, blends, d, e, n):
+    poses = [_poses(robot, cycle, d, e, n, blend=b) for b in blends]
+    qa, qa1, qa2 = (jnp.stack([p[0][k] for p in poses]) for k in range(3))
+    return (_coeffs(robot, payloads, qa, qa1, qa2), jnp.stack([p[2] for p in poses]),
+            jnp.stack([p[1] for p in poses]))
+
+
+def sweep_tables(robot: Robot, cycle, payloads: Sequence[float], blend: str, *, blends=BLENDS, d=0.025,
+                 e=None, n=3.0) -> Tables:
+    """Linearization tables of one blend's path for every payload [kg] (leaves with a leading payload
+    axis K), as ``run_sweep(..., blends=blends)`` builds them: with the same ``blends`` the compiled
+    table programs of a sweep are reused (no new compilation). ``d``, ``e`` [m], ``n``: the blend."""
+    e = d if e is None else e
+    blends = tuple(blends)
+    if blend not in blends:
+        raise ValueError(f"blend {blend!r} is not among the sweep's blends {blends}")
+    for b in blends:
+        check_path_args(cycle, b, d, e, n, d, e, n)
+    values, breaks, _ = _stacked_tables(robot, cycle, jnp.asarray([float(m) for m in payloads]), blends,
+                                        *(jnp.asarray(v, dtype=float) for v in (d, e, n)))
+    i = blends.index(blend)
+    k = len(payloads)
+    return Tables(values=jax.tree_util.tree_map(lambda v: v[:, i], values),
+                  breaks=jnp.broadcast_to(breaks[i], (k,) + breaks.shape[1:]))
+
+
 class SweepResult(NamedTuple):
     """Metrics dict name -> (B, P, C) arrays (blend, profile, case), optional Series with the same
     leading axes, the labels, and timing."""
@@ -151,11 +177,8 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES, *, d=0.0
     tfs = jnp.asarray([c.tf for c in cases])
     d_, e_, n_ = (jnp.asarray(v, dtype=float) for v in (d, e, n))
     t0 = time.perf_counter()
-    poses = [_poses(robot, cycle, d_, e_, n_, blend=b) for b in blends]
-    qa, qa1, qa2 = (jnp.stack([p[0][k] for p in poses]) for k in range(3))
-    lengths = jnp.stack([p[1] for p in poses])
-    breaks = jnp.stack([p[2] for p in poses])
-    values = jax.block_until_ready(_coeffs(robot, payloads, qa, qa1, qa2))
+    values, breaks, lengths = _stacked_tables(robot, cycle, payloads, blends, d_, e_, n_)
+    values = jax.block_until_ready(values)
     tables_s = time.perf_counter() - t0
     robots = None
     if second_order:

@@ -52,14 +52,13 @@ import numpy as np
 from jaxflex import plotting
 from jaxflex.blends import BLENDS
 from jaxflex.experiments.io import fmt, save_figure, table
-from jaxflex.linearized import Tables
 from jaxflex.optimize.loop import minimize
 from jaxflex.optimize.objective import Scales, law_objective
 from jaxflex.optimize.study import TORQUE_WEIGHT, optimize_law
 from jaxflex.path import make_path
 from jaxflex.profiles import PROFILES, make_profile, profile_eval, shaped
 from jaxflex.robot import cycle_preset, robot_preset
-from jaxflex.sweep import Case, default_grid, run_sweep
+from jaxflex.sweep import Case, default_grid, run_sweep, sweep_tables
 
 QUICK = os.environ.get("JAXFLEX_QUICK", "") == "1"
 OUT = Path(os.environ.get("JAXFLEX_NB_OUT", "results/notebooks")) / "optimize_new_payload"
@@ -98,25 +97,10 @@ print(f"new case: {PAYLOAD:g} kg in {TF:g} s, dwell {DWELL:g} s")
 # payload, tf and number of coefficients resumes). Quick mode: the same steps spelled out. The sweep
 # gives the best paper combination and the references of the objective (the best law's vibration
 # energy at tf and dwell amplitude, and the poly7-Lamé peak torque as the torque bound). The
-# objective needs the linearization tables of that path for the new payload: `run_sweep` builds
-# them but does not return them, so `sweep_tables` calls the sweep's own jitted stages
-# (`jaxflex.sweep._poses`, `_coeffs`) with the arguments `run_sweep` used, which reuses their
-# compiled programs instead of compiling `build_tables` anew (private API: see the README).
+# objective needs the linearization tables of that path for the new payload:
+# `jaxflex.sweep.sweep_tables` builds them with the sweep's own compiled programs.
 
 # %%
-def sweep_tables(robot, cycle, payload, blends, blend, d=0.025, n=3.0):
-    """Linearization tables of ``blend`` (d = e, Lamé order n) for ``payload``, stacked over one
-    model (leading axis 1), from the compiled stages of ``run_sweep(..., blends=blends)``."""
-    from jaxflex import sweep as _sweep
-
-    d_, e_, n_ = (jnp.asarray(v, dtype=float) for v in (d, d, n))
-    poses = [_sweep._poses(robot, cycle, d_, e_, n_, blend=b) for b in blends]
-    qa, qa1, qa2 = (jnp.stack([p[0][k] for p in poses]) for k in range(3))
-    values = _sweep._coeffs(robot, jnp.asarray([float(payload)]), qa, qa1, qa2)   # (1, B, nodes, ...)
-    i = tuple(blends).index(blend)
-    return Tables(values=jax.tree_util.tree_map(lambda v: v[:, i], values), breaks=poses[i][2][None])
-
-
 if QUICK:
     res = run_sweep(robot, cycle, [Case(PAYLOAD, TF)], dwell=DWELL, blends=blends, profiles=PROFILES,
                     grid=grid, with_series=True, second_order=False)
@@ -126,7 +110,7 @@ if QUICK:
     bi, bj = np.unravel_index(np.argmin(dw), dw.shape)
     blend, best_law = paper_blends[bi], paper_profiles[bj]
     path = make_path(cycle, blend, 0.025)
-    tables = sweep_tables(robot, cycle, PAYLOAD, paper_blends, blend)
+    tables = sweep_tables(robot, cycle, [PAYLOAD], blend, blends=paper_blends)
     ref = {k: v[bi, bj, 0] for k, v in paper.items()}
     torque_bound = paper["max_torque_nm"][paper_blends.index("lame"), paper_profiles.index("poly7"), 0]
     scales = Scales(energy=jnp.asarray([ref["residual_energy"]]),
