@@ -13,6 +13,7 @@ def _add_common(p, preset=True):
 
 
 def build_parser() -> argparse.ArgumentParser:
+    """The ``jaxflex`` argument parser (one subparser per command)."""
     parser = argparse.ArgumentParser(
         prog="jaxflex",
         description="Differentiable elastodynamics and vibration-aware trajectory design for a "
@@ -116,6 +117,8 @@ def _enable_compilation_cache(jax) -> None:
 
 
 def main(argv=None) -> int:
+    """Console entry point: parse ``argv`` (default: sys.argv), enable float64 and the persistent
+    compilation cache, run the command; returns the exit status (2 on bad input)."""
     import jax
 
     jax.config.update("jax_enable_x64", True)
@@ -158,6 +161,11 @@ def main(argv=None) -> int:
     except ValueError as err:
         print(f"jaxflex {args.command}: error: {err}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print(f"\njaxflex {args.command}: interrupted. Outputs are written atomically (no half-written "
+              "files); rerun the same command to resume from the finished sections and checkpoints.",
+              file=sys.stderr)
+        return 130
     return 0
 
 

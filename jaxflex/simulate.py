@@ -49,6 +49,7 @@ class Grid(NamedTuple):
 
 
 def check_grid(grid: Grid) -> None:
+    """Raise ValueError unless ``grid`` is usable (coarse a positive multiple of 8, steps >= 1)."""
     if grid.coarse < 8 or grid.coarse % 8:
         raise ValueError(f"grid.coarse must be a positive multiple of 8, got {grid.coarse}")
     if grid.fine < 1 or grid.dwell_steps < 1:
