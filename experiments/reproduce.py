@@ -12,6 +12,8 @@ import numpy as np
 
 from . import convergence, kinematics, modes, vibration
 from . import vibration as vibration_study
+from jaxflex.compiled import release_compiled
+
 from .io import provenance, resumable, table, write_json, write_text
 
 
@@ -39,6 +41,7 @@ def run(out: str = "results", quick: bool = False, vibration: bool = True, optim
                              make_figures=preset == "default")
         results[f"kinematics_{preset}"] = res
     sections.append(_kinematics_section(results, fig_dir, out))
+    release_compiled()       # between sections: bounded memory mappings (jaxflex.compiled)
 
     print("== natural frequencies along the path (paper Section 4)", flush=True)
     pts = 9 if quick else 41
@@ -56,17 +59,21 @@ def run(out: str = "results", quick: bool = False, vibration: bool = True, optim
         "*First three natural frequencies along the path for 6 kg and 0.1 kg.*", "",
         "With the `table6` preset the first frequency at 6 kg is about 29 Hz instead of 58 Hz: no "
         "placement with Table 3's links reproduces both Table 6 and the frequencies (SPEC 2).", ""]))
+    release_compiled()
 
     if with_vibration:
         print("== vibration study (paper Section 4: Tables 7-11, Fig. 12)", flush=True)
         vib = resumable(out / "vibration.json", key, lambda: vibration_study.compute(quick=quick), "vibration")
         results["vibration"] = vib
         sections.append(_vibration_section(vib, fig_dir, out))
+        release_compiled()
         if not quick:
             print("== step convergence and full-model cross-check", flush=True)
-            conv = {"dt": resumable(out / "convergence_dt.json", key, convergence.dt_study, "dt study"),
-                    "reference": resumable(out / "convergence_reference.json", key,
-                                           convergence.reference_study, "full-model check")}
+            conv = {"dt": resumable(out / "convergence_dt.json", key, convergence.dt_study, "dt study")}
+            release_compiled()
+            conv["reference"] = resumable(out / "convergence_reference.json", key, convergence.reference_study,
+                                          "full-model check")
+            release_compiled()
             results["convergence"] = conv
             sections.append(_convergence_section(conv))
 
@@ -103,6 +110,7 @@ def _optimization(out: Path, quick: bool, key: dict) -> dict:
         rec = resumable(d / "study.json", key, lambda: opt.compute(payloads=(m,), tf=tf, steps=steps, out=str(d),
                                                                    verify=not quick), f"optimization {m:g} kg")
         res["cases"].append({"dir": d.relative_to(out).as_posix(), "text": opt.text(rec), "record": rec})
+        release_compiled()
     tfs = (0.43, 0.37) if quick else (0.43, 0.40, 0.37, 0.34, 0.31)
     ct = resumable(out / "cycle_time" / "study.json", key,
                    lambda: opt.run_cycle_time(payload=6.0, tf_ref=0.43, tfs=tfs, steps=steps,

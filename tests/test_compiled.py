@@ -1,0 +1,33 @@
+"""Compiled programs can be released: a long job (``jaxflex reproduce``) stays below the kernel's
+per-process limit on memory mappings (``jaxflex.compiled``)."""
+import jax
+import jax.numpy as jnp
+import pytest
+
+from jaxflex.compiled import mapping_count, mapping_limit, release_compiled
+
+
+def _program(n):
+    """A jitted function with about n separate kernels (the elementwise fusions between the matrix
+    products)."""
+    def f(x):
+        for k in range(n):
+            x = jnp.sin(x + k) @ jnp.sin(x + k).T / (k + 1.0)
+        return x
+    return jax.jit(f)
+
+
+@pytest.mark.skipif(mapping_count() is None, reason="needs /proc/self/maps (Linux)")
+def test_release_compiled_returns_the_mappings_of_compiled_programs():
+    """The mappings of live compiled programs go away with ``release_compiled``."""
+    assert mapping_limit() is None or mapping_limit() > 0
+    x = jnp.linspace(0.0, 1.0, 64 * 64).reshape(64, 64)
+    release_compiled()
+    before = mapping_count()
+    _program(60)(x).block_until_ready()
+    loaded = mapping_count()
+    # each kernel maps a few regions: 60 kernels add well over 100 mappings
+    assert loaded - before > 100, (before, loaded)
+    release_compiled()
+    # most of them are returned (the rest: allocator pools that stay with the process)
+    assert loaded - mapping_count() > 0.5 * (loaded - before), (before, loaded, mapping_count())
