@@ -1,7 +1,7 @@
 """Design-level rollouts: blend parameters and motion-law coefficients -> Series and metrics.
 
-A *design* is a point of the optimization space of SPEC 6: the blend parameters (d, e [m], Lamé
-order n) of a blend family and the coefficients of a shaped monotone motion law
+A *design* is a point of the optimization space of SPEC 6: the blend parameters of each corner
+(d, e [m], Lamé order n) of a blend family and the coefficients of a shaped monotone motion law
 (``jaxflex.profiles.shaped``). ``design_rollout`` is a pure, differentiable function of the design
 (the linearization tables are rebuilt from the path it defines), so ``jax.grad`` and ``jax.vmap``
 apply directly. ``sweep_designs`` evaluates thousands of designs in fixed-size chunks (one
@@ -21,15 +21,18 @@ from jax.sharding import NamedSharding, PartitionSpec
 
 from jaxflex.linearized import build_tables
 from jaxflex.metrics import metrics
-from jaxflex.path import Cycle, make_path
+from jaxflex.path import Cycle, Path, make_path
 from jaxflex.profiles import shaped
 from jaxflex.robot import Robot
 from jaxflex.simulate import Grid, Series, check_grid, motion_samples, rollout
 
 
 class Design(NamedTuple):
-    """Blend parameters d, e [m] and Lamé order n (scalars, or (D,) for a batch) and the shaped
-    motion-law coefficients coef ((m + 1,), or (D, m + 1))."""
+    """Blend parameters per corner and the shaped motion-law coefficients.
+
+    d, e [m] and the Lamé order n have a trailing corner axis: (2,) = (pick corner, place corner) for
+    one design, (D, 2) for a batch; coef ((m + 1,), or (D, m + 1)) are the coefficients of
+    ``jaxflex.profiles.shaped``."""
 
     d: jax.Array
     e: jax.Array
@@ -37,18 +40,25 @@ class Design(NamedTuple):
     coef: jax.Array
 
 
-def design(d=0.025, e=None, n=3.0, coef=(1.0, 1.0, 1.0, 1.0)) -> Design:
-    """A single design as float64 arrays (e defaults to d)."""
+def design(d=0.025, e=None, n=3.0, coef=(1.0, 1.0, 1.0, 1.0), *, d2=None, e2=None, n2=None) -> Design:
+    """A single design as float64 arrays: corner 1 (d, e [m], n), corner 2 (d2, e2, n2; default the
+    mirror image of corner 1); e defaults to d."""
     e = d if e is None else e
-    return Design(*(jnp.asarray(v, dtype=float) for v in (d, e, n, coef)))
+    pair = lambda a, b: jnp.asarray([a, a if b is None else b], dtype=float)
+    return Design(pair(d, d2), pair(e, e2), pair(n, n2), jnp.asarray(coef, dtype=float))
+
+
+def design_path(cycle: Cycle, x: Design, blend: str = "lame") -> Path:
+    """The blended path of one design (corner axis (2,)); validated when the values are concrete."""
+    return make_path(cycle, blend, x.d[0], x.e[0], x.n[0], x.d[1], x.e[1], x.n[1])
 
 
 def design_rollout(robot: Robot, cycle: Cycle, x: Design, tf, dwell, grid: Grid, *, blend: str = "lame",
                    order: int = 3, second_order: bool = True) -> Series:
     """Rollout of one design (motion over [0, tf] [s], then a dwell [s]); differentiable in x, robot
     (payload, stiffness, ...) and tf. ``second_order`` selects the second-order fast model (see
-    ``simulate.rollout``). Validate concrete inputs with ``make_path`` before tracing."""
-    path = make_path(cycle, blend, x.d, x.e, x.n)
+    ``simulate.rollout``). Validate concrete inputs with ``design_path`` before tracing."""
+    path = design_path(cycle, x, blend)
     tables = build_tables(robot, path)
     samples = motion_samples(path.length, shaped(x.coef, order), tf, grid)
     return rollout(tables, samples, tf, dwell, grid, robot if second_order else None)
@@ -83,9 +93,10 @@ def sweep_designs(robot: Robot, cycle: Cycle, xs: Design, *, tf: float, dwell: f
     first design with a non-finite metric."""
     check_grid(grid)
     leaves = [jnp.asarray(v, dtype=float) for v in xs]
-    size = leaves[0].shape[0] if leaves[0].ndim else 0
-    if size == 0 or any(v.shape[:1] != (size,) for v in leaves):
-        raise ValueError(f"designs need a common leading batch axis, got shapes {[v.shape for v in leaves]}")
+    size = leaves[0].shape[0] if leaves[0].ndim == 2 else 0
+    if size == 0 or any(v.shape[:1] != (size,) for v in leaves) or any(v.shape != (size, 2) for v in leaves[:3]):
+        raise ValueError("designs need a common leading batch axis D and a corner axis (D, 2) for d, e, n; "
+                         f"got shapes {[v.shape for v in leaves]}")
     devices = list(jax.local_devices() if devices is None else devices)
     chunk = chunk or 4 * len(devices)
     if chunk % len(devices):
@@ -112,7 +123,7 @@ def sweep_designs(robot: Robot, cycle: Cycle, xs: Design, *, tf: float, dwell: f
         bad = np.flatnonzero(~np.isfinite(v))
         if bad.size:
             i = int(bad[0])
-            raise FloatingPointError(f"non-finite {name} for design {i}: d={float(leaves[0][i]):g} m, "
-                                     f"e={float(leaves[1][i]):g} m, n={float(leaves[2][i]):g}, "
+            raise FloatingPointError(f"non-finite {name} for design {i}: d={np.asarray(leaves[0][i]).tolist()} m, "
+                                     f"e={np.asarray(leaves[1][i]).tolist()} m, n={np.asarray(leaves[2][i]).tolist()}, "
                                      f"coef={np.asarray(leaves[3][i]).tolist()}")
     return DesignSweep(mets, len(devices), chunk, compile_s, run_s)

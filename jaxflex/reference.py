@@ -74,11 +74,13 @@ def _outputs(robot, qa, qad, qadd, x, qedd, tau):
     return jnp.stack([e, ed, edd, tau])
 
 
-def reference_rollout(robot: Robot, path: Path, profile: Profile | Sequence[Profile], tf: float,
+def reference_rollout(robot: Robot, path: Path | Sequence[Path], profile: Profile | Sequence[Profile], tf: float,
                       dwell: float = 0.1, dt: float = 1e-5, dwell_dt: float | None = None) -> Series:
     """Full nonlinear simulation of trajectories (motion over [0, tf] [s] then a dwell [s]) by RK4.
 
-    ``profile`` is one motion law or a sequence of them; ``robot.payload`` may be a 1-D array of
+    ``profile`` is one motion law or a sequence of them, along ``path`` or along the matching
+    element of a sequence of paths (one per law; they must share the pick and place points, as
+    every path of one cycle does); ``robot.payload`` may be a 1-D array of
     payloads [kg]. The runs are vmapped (batching amortizes the per-operation overhead of the
     nonlinear model, which dominates a single sequential run). dt [s] is rounded down so that the
     motion has a multiple of 8 steps; the dwell uses dwell_dt (default dt). Returns a ``Series`` like
@@ -96,11 +98,14 @@ def reference_rollout(robot: Robot, path: Path, profile: Profile | Sequence[Prof
     nd = max(1, int(np.ceil(dwell / (dwell_dt or dt))))
     single = isinstance(profile, Profile)
     profiles = [profile] if single else list(profile)
+    paths = [path] * len(profiles) if isinstance(path, Path) else list(path)
+    if len(paths) != len(profiles):
+        raise ValueError(f"{len(paths)} paths for {len(profiles)} motion laws: give one path or one per law")
     tfa = jnp.asarray(tf)
     k = np.arange(n)
-    samples = [tuple(_joint_samples(robot, path, p, tfa, eta, side)
+    samples = [tuple(_joint_samples(robot, pth, p, tfa, eta, side)
                      for eta, side in ((k / n, 1), ((k + 0.5) / n, 1), ((k + 1) / n, -1)))
-               for p in profiles]
+               for pth, p in zip(paths, profiles)]
     samples = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *samples)
     payload = jnp.asarray(robot.payload, dtype=float)
     run = lambda m, smp: _reference(robot.replace(payload=m), smp, tfa, jnp.asarray(dwell), n, nd)

@@ -37,7 +37,9 @@ def value_and_grad_fwd(f: Callable) -> Callable:
 
 
 class OptResult(NamedTuple):
-    """Best parameters, their objective value and aux terms, and the history of (step, value)."""
+    """Best parameters, their objective value and aux terms; the history of (step, value, *monitor)
+    rows (deterministic), the wall time [s] after each step (``times``), steps run, why it stopped,
+    wall time of the loop [s] (compilation included)."""
 
     params: object
     value: float
@@ -46,15 +48,17 @@ class OptResult(NamedTuple):
     steps_run: int
     stopped: str
     wall_s: float
+    times: tuple = ()
 
 
-def _save(path: Path, params, opt_state, history, step, best, best_value):
+def _save(path: Path, params, opt_state, history, times, step, best, best_value):
     leaves = {f"p{i}": np.asarray(v) for i, v in enumerate(jax.tree_util.tree_leaves(params))}
     leaves.update({f"s{i}": np.asarray(v) for i, v in enumerate(jax.tree_util.tree_leaves(opt_state))})
     leaves.update({f"b{i}": np.asarray(v) for i, v in enumerate(jax.tree_util.tree_leaves(best))})
     tmp = path.with_name(path.name + f".tmp{os.getpid()}.npz")
-    np.savez(tmp, history=np.asarray(history, dtype=float).reshape(-1, 2), step=step,
-             best_value=best_value, **leaves)
+    width = len(history[0]) if history else 2
+    np.savez(tmp, history=np.asarray(history, dtype=float).reshape(-1, width), times=np.asarray(times, dtype=float),
+             step=step, best_value=best_value, **leaves)
     os.replace(tmp, path)
 
 
@@ -64,11 +68,30 @@ def _load(path: Path, params, opt_state):
         jax.tree_util.tree_structure(tree),
         [jnp.asarray(z[f"{tag}{i}"]) for i in range(len(jax.tree_util.tree_leaves(tree)))])
     return (rebuild(params, "p"), rebuild(opt_state, "s"), [tuple(r) for r in z["history"].tolist()],
-            int(z["step"]), rebuild(params, "b"), float(z["best_value"]))
+            z["times"].tolist(), int(z["step"]), rebuild(params, "b"), float(z["best_value"]))
 
 
-def _optimizer(learning_rate: float):
-    return optax.chain(optax.clip_by_global_norm(10.0), optax.adam(learning_rate))
+DECAY_FLOOR = 0.1     # the cosine schedule ends at this fraction of the learning rate
+WARMUP = 0.1          # ... and starts with a linear warm-up over this fraction of the steps
+
+
+def _optimizer():
+    """Adam's update direction after gradient clipping; the (traced) learning rate scales it in
+    ``_update``, so a new rate or schedule length reuses the compiled step."""
+    return optax.chain(optax.clip_by_global_norm(10.0), optax.scale_by_adam())
+
+
+def learning_rate_at(step: int, steps: int, learning_rate: float, decay: bool) -> float:
+    """The learning rate of update ``step`` (0-based): constant, or with ``decay`` a linear warm-up
+    over the first WARMUP of ``steps`` (Adam's first steps move every parameter by the full rate,
+    whatever its gradient) followed by a cosine decay to DECAY_FLOOR of the rate."""
+    if not decay or steps <= 0:
+        return learning_rate
+    warm = max(1, int(round(WARMUP * steps)))
+    if step < warm:
+        return learning_rate * (step + 1) / warm
+    c = 0.5 * (1.0 + np.cos(np.pi * min(step - warm, steps - warm) / max(1, steps - warm)))
+    return learning_rate * (DECAY_FLOOR + (1.0 - DECAY_FLOOR) * c)
 
 
 def _value_and_grad(f: Callable, args, mode: str):
@@ -76,47 +99,56 @@ def _value_and_grad(f: Callable, args, mode: str):
     return value_and_grad_fwd(g) if mode == "forward" else jax.value_and_grad(g, has_aux=True)
 
 
-@functools.partial(jax.jit, static_argnames=("f", "learning_rate", "mode"))
-def _update(params, state, args, *, f, learning_rate, mode):
+@functools.partial(jax.jit, static_argnames=("f", "mode"))
+def _update(params, state, args, learning_rate, *, f, mode):
     """One Adam step. Module level with f static: calls with the same f (the same object) and new
-    ``args`` values of the same shapes reuse one compilation (e.g. a sweep over tf or payloads)."""
+    ``args`` or learning-rate values of the same shapes reuse one compilation (e.g. a sweep over tf
+    or payloads)."""
     (value, aux), grad = _value_and_grad(f, args, mode)(params)
     with jax.numpy_dtype_promotion("standard"):     # optax mixes Python floats and int32 counts
-        upd, state = _optimizer(learning_rate).update(grad, state, params)
-    return optax.apply_updates(params, upd), state, value, aux
+        direction, state = _optimizer().update(grad, state, params)
+    step = jax.tree_util.tree_map(lambda u: -learning_rate * u, direction)
+    return optax.apply_updates(params, step), state, value, aux
 
 
 def minimize(f: Callable, params0, *, args: tuple = (), steps: int = 100, learning_rate: float = 0.05,
              checkpoint: str | Path | None = None, patience: int = 25, rel_tol: float = 1e-3,
              target: float | None = None, progress: bool = True, label: str = "optimize",
-             mode: str = "reverse") -> OptResult:
+             mode: str = "reverse", decay: bool = False, monitor: Callable | None = None) -> OptResult:
     """Minimize f(params, *args) -> (value, aux) with Adam.
 
     ``args`` are traced (pytrees of arrays): reuse the same function f with new ``args`` values to
-    avoid recompiling. Stops after ``steps`` updates, when the best value has not improved by a
-    relative ``rel_tol`` for ``patience`` steps, or when it falls below ``target``. Returns the best
-    parameters seen. ``mode``: "reverse" or "forward" autodiff for the gradient."""
+    avoid recompiling. Stops after ``steps`` updates, when the best value has not improved by
+    ``rel_tol * max(1, |best|)`` for ``patience`` steps (this works for objectives on a log scale,
+    whose values cross zero), or when it falls below ``target``. Returns the best parameters seen.
+    ``mode``: "reverse" or "forward" autodiff for the gradient. ``decay``: warm-up and cosine decay
+    of the learning rate over ``steps`` (``learning_rate_at``). ``monitor``: aux -> 1-D array of numbers recorded in
+    every history row after (step, value)."""
     if mode not in ("reverse", "forward"):
         raise ValueError(f"mode must be 'reverse' or 'forward', got {mode!r}")
-    learning_rate = float(learning_rate)
-    opt = _optimizer(learning_rate)
-    update = functools.partial(_update, f=f, learning_rate=learning_rate, mode=mode)
-    params, state = params0, opt.init(params0)
-    history, step, best, best_value, best_aux = [], 0, params0, np.inf, None
+    if not (np.isfinite(learning_rate) and learning_rate > 0):
+        raise ValueError(f"learning_rate must be > 0, got {learning_rate}")
+    update = functools.partial(_update, f=f, mode=mode)
+    params, state = params0, _optimizer().init(params0)
+    history, times, step, best, best_value, best_aux = [], [], 0, params0, np.inf, None
     ckpt = Path(checkpoint) if checkpoint else None
     if ckpt and ckpt.exists():
-        params, state, history, step, best, best_value = _load(ckpt, params0, state)
+        params, state, history, times, step, best, best_value = _load(ckpt, params0, state)
         if progress:
             print(f"  {label}: resumed at step {step} (best {best_value:.4g})", flush=True)
+    offset = times[-1] if times else 0.0
     started, last_gain, stopped = time.perf_counter(), step, "steps"
     while step < steps:
-        new_params, state, value, aux = update(params, state, args)
+        lr = jnp.asarray(learning_rate_at(step, steps, float(learning_rate), decay), dtype=jnp.float64)   # one type: no retrace
+        new_params, state, value, aux = update(params, state, args, lr)
         value = float(value)
         if not np.isfinite(value):
             raise FloatingPointError(f"{label}: non-finite objective at step {step}")
-        history.append((step, value))
+        extra = () if monitor is None else tuple(float(v) for v in np.ravel(np.asarray(monitor(aux))))
+        history.append((step, value) + extra)
+        times.append(offset + time.perf_counter() - started)
         if value < best_value:
-            if value < best_value * (1 - rel_tol):
+            if value < best_value - rel_tol * max(1.0, abs(best_value)):
                 last_gain = step
             best, best_value, best_aux = params, value, aux
         params, step = new_params, step + 1
@@ -124,7 +156,7 @@ def minimize(f: Callable, params0, *, args: tuple = (), steps: int = 100, learni
             print(f"  {label}: step {step}/{steps} objective {value:.4g} best {best_value:.4g} "
                   f"({time.perf_counter() - started:.0f} s)", flush=True)
         if ckpt and (step % 10 == 0 or step == steps):
-            _save(ckpt, params, state, history, step, best, best_value)
+            _save(ckpt, params, state, history, times, step, best, best_value)
         if target is not None and best_value < target:
             stopped = "target"
             break
@@ -132,8 +164,8 @@ def minimize(f: Callable, params0, *, args: tuple = (), steps: int = 100, learni
             stopped = "plateau"
             break
     if ckpt:
-        _save(ckpt, params, state, history, step, best, best_value)
+        _save(ckpt, params, state, history, times, step, best, best_value)
     if best_aux is None:                       # resumed at the end: evaluate the best once
         (best_value, best_aux), _ = jax.jit(_value_and_grad(f, args, mode))(best)
         best_value = float(best_value)
-    return OptResult(best, best_value, best_aux, history, step, stopped, time.perf_counter() - started)
+    return OptResult(best, best_value, best_aux, history, step, stopped, time.perf_counter() - started, times)

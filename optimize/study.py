@@ -1,16 +1,24 @@
-"""Motion-law optimization against the paper's best combination and the industrial baselines.
+"""Trajectory optimization against the paper's best combination and the industrial baselines.
 
-``optimize_law`` is the whole study for one or several payloads at a fixed motion time:
+``optimize_design`` is the whole study for one or several payloads at a fixed motion time:
 
 1. the 12 paper combinations (``jaxflex.sweep``) give the best one (smallest dwell residual; for
    several payloads the smallest worst-case ratio to each payload's best) and the torque bound
-   (the poly7-Lamé peak torque);
-2. a shaped monotone law (``jaxflex.profiles.shaped``) on the best combination's path is optimized
-   by gradient (reverse mode through the whole second-order rollout, optax Adam) on the training
-   models, each normalized by the best paper law on the same model;
-3. the optimized law and every baseline (best paper law, its ZV/ZVD shaping, Ruckig) are evaluated
-   on the same path and models: nominal, perturbed (E x {0.95, 1.05}, payload x {0.9, 1.1}), and
-   with 1 % damping at the first mode.
+   (the poly7-Lamé peak torque, per payload);
+2. a design (Lamé blend parameters d, e, n of each corner and a shaped monotone motion law,
+   ``jaxflex.designs``) is optimized by gradient (reverse mode through the table build and the
+   whole second-order rollout, optax Adam) on the training models, each normalized by the best paper
+   combination on the same model (``objective.objective``); it starts from the paper's Lamé path
+   (d = e = 25 mm, n = 3) with poly7. With ``free_path=False`` only the law is optimized, on the
+   best paper combination's path;
+3. the optimized design and every baseline (best paper combination, its ZV/ZVD shaping, Ruckig along
+   the best paper path) are evaluated on the same models: nominal, perturbed (E x {0.95, 1, 1.05},
+   payload x {0.9, 1, 1.1}), and with 1 % damping at the first mode.
+
+Training sets (SPEC 6: a design counts only if its advantage survives model error): ``nominal``
+(the payloads), ``spanning`` (default: per payload the nominal model and the two corners of the
+perturbation box with the lowest and the highest first frequency, E x 0.95 / payload x 1.1 and
+E x 1.05 / payload x 0.9) or ``perturbed`` (all nine per payload).
 """
 from __future__ import annotations
 
@@ -22,32 +30,62 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxflex.path import Cycle, make_path
-from jaxflex.profiles import make_profile, shaped
+from jaxflex.designs import Design, design, design_path
+from jaxflex.path import Cycle, Path, make_path
+from jaxflex.profiles import Profile, make_profile, shaped
 from jaxflex.robot import Robot
-from jaxflex.simulate import Grid
+from jaxflex.simulate import Grid, MotionSamples
 from jaxflex.sweep import Case, default_grid, run_sweep
 
-from .baselines import LawEvaluator, model_set, place_first_mode_hz, ruckig_samples, shaper_profiles
+from .baselines import LawEvaluator, ModelSet, model_set, place_first_mode_hz, ruckig_samples, shaper_profiles
 from .loop import OptResult, minimize
-from .objective import Scales, law_objective
+from .objective import TORQUE_WEIGHT, Params, Scales, decode, encode, law_objective, objective
 
 PERTURB_E = (0.95, 1.0, 1.05)
 PERTURB_PAYLOAD = (0.9, 1.0, 1.1)
+SPANNING = ((0.95, 1.1), (1.0, 1.0), (1.05, 0.9))     # (E factor, payload factor): low, nominal, high f1
 DAMPING_RATIO = 0.01
-TORQUE_WEIGHT = 1e3     # penalty weight on (peak torque / bound - 1)^2: 1 % excess costs 0.1
+TRAINING_SETS = ("nominal", "spanning", "perturbed")
+BLEND_FAMILY = "lame"               # the optimized design's blend family (d, e, n per corner)
+START_D_FRACTION = 0.98             # start: d = 0.98 h (d = h is the open end of the decoded range)
 
 
-class LawStudy(NamedTuple):
-    """Everything the study measured. ``evaluations[set][law]`` is a metrics dict name -> (K,)
-    array over that set's models; ``sets`` maps a set name to its model labels."""
+def training_models(robot: Robot, payloads: Sequence[float], kind: str = "spanning") -> ModelSet:
+    """The models an optimization trains on (module docstring); labels name each model."""
+    if kind == "nominal":
+        return model_set(robot, payloads)
+    if kind == "perturbed":
+        return model_set(robot, payloads, stiffness=PERTURB_E, payload_scale=PERTURB_PAYLOAD)
+    if kind == "spanning":
+        sets = [model_set(robot, [m], stiffness=(k,), payload_scale=(p,)) for m in payloads for k, p in SPANNING]
+        robots = jax.tree_util.tree_map(lambda *a: jnp.concatenate(a), *[s.robots for s in sets])
+        return ModelSet(robots, tuple(lab for s in sets for lab in s.labels))
+    raise ValueError(f"unknown training set {kind!r}; choose one of {TRAINING_SETS}")
+
+
+class Candidate(NamedTuple):
+    """A trajectory to evaluate: the name of its path (a key of ``DesignStudy.paths``) and its law."""
+
+    path: str
+    law: object         # Profile or MotionSamples
+
+
+class DesignStudy(NamedTuple):
+    """Everything the study measured. ``evaluations[set][candidate]`` is a metrics dict name -> (K,)
+    array over that set's models; ``sets`` maps a set name to its model labels; ``paths`` holds the
+    best paper path ("paper") and the optimized one ("optimized")."""
 
     payloads: tuple
     tf: float
-    blend: str
-    best_paper: str
+    blend: str                  # the best paper combination's blend
+    best_paper: str             # ... and motion law
+    design: Design | None       # the optimized design (None with free_path=False)
     coef: np.ndarray
     result: OptResult
+    train: str
+    train_labels: tuple         # the training models (the optimizer's history records their dwell residuals)
+    candidates: dict            # name -> Candidate
+    paths: dict                 # "paper" / "optimized" -> Path
     evaluations: dict
     sets: dict
     paper: dict
@@ -56,8 +94,12 @@ class LawStudy(NamedTuple):
     first_mode_hz: tuple
     grid: Grid
     wall_s: float
-    laws: dict                  # name -> Profile or MotionSamples (every law evaluated)
-    nominal: LawEvaluator       # the nominal models' evaluator (time series: ``nominal.series(law)``)
+    evaluators: dict            # set -> path name -> LawEvaluator
+
+    def series(self, name: str):
+        """Simulation ``Series`` of a candidate on the nominal models (leading axis: payloads)."""
+        c = self.candidates[name]
+        return self.evaluators["nominal"][c.path].series(c.law)
 
 
 def paper_best(robot: Robot, cycle: Cycle, payloads, tf, dwell, grid):
@@ -69,104 +111,166 @@ def paper_best(robot: Robot, cycle: Cycle, payloads, tf, dwell, grid):
     return res, res.blends[i], res.profiles[j]
 
 
-def optimize_law(robot: Robot, cycle: Cycle, payloads: Sequence[float] = (6.0,), tf: float = 0.43, *,
-                 dwell: float = 0.1, n_coef: int = 6, steps: int = 150, learning_rate: float = 0.05,
-                 robust: bool = False, checkpoint=None, ruckig: bool = True, progress: bool = True,
-                 grid: Grid | None = None) -> LawStudy:
-    """Run the study (see module docstring). ``robust`` trains on the perturbed models instead of
-    the nominal ones. Returns a ``LawStudy``."""
+def start_design(cycle: Cycle, n_coef: int = 6) -> Design:
+    """The paper's Lamé path (d = 0.98 h, e = 25 mm, n = 3 at both corners) with poly7 (the shaped
+    law with equal coefficients)."""
+    return design(START_D_FRACTION * float(cycle.h), 0.025, 3.0, np.ones(n_coef))
+
+
+def torque_bounds(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid: Grid,
+                  evaluator: LawEvaluator | None = None) -> np.ndarray:
+    """Peak torque bound [N m] per model (K,): the poly7-Lamé combination's (d = e = 25 mm) peak
+    torque on that model at motion time tf [s] (a heavier perturbed payload gets its own bound).
+    ``evaluator``: one already built for these models, reused if its path is the Lamé one."""
+    if evaluator is None or evaluator.path.kind != "lame" or evaluator.models is not models:
+        evaluator = LawEvaluator(models, make_path(cycle, "lame", 0.025), tf, dwell, grid)
+    return evaluator(make_profile("poly7"), tf=tf)["max_torque_nm"]
+
+
+def reference_scales(evaluator: LawEvaluator, law, torque_bound, tf: float | None = None) -> Scales:
+    """Objective scales from a reference law on the evaluator's path and models (K,) at motion time
+    tf [s] (default: the evaluator's), and the torque bound per model (K,) [N m]."""
+    ref = evaluator(law, tf=tf)
+    amp = ref["dwell_residual_mm"] * 1e-3
+    return Scales(energy=jnp.asarray(ref["residual_energy"]), dwell_ms=jnp.asarray(amp**2 / 2),
+                  torque_bound=jnp.asarray(torque_bound, dtype=float))
+
+
+def optimize_design(robot: Robot, cycle: Cycle, payloads: Sequence[float] = (6.0,), tf: float = 0.43, *,
+                    dwell: float = 0.1, n_coef: int = 6, steps: int = 100, learning_rate: float = 0.05,
+                    train: str = "spanning", free_path: bool = True, checkpoint=None, ruckig: bool = True,
+                    progress: bool = True, grid: Grid | None = None, init: Design | None = None) -> DesignStudy:
+    """Run the study (see module docstring). Returns a ``DesignStudy``. ``init``: starting design
+    (default ``start_design``)."""
     started = time.time()
     payloads = tuple(float(m) for m in payloads)
+    if train not in TRAINING_SETS:
+        raise ValueError(f"unknown training set {train!r}; choose one of {TRAINING_SETS}")
+    if n_coef < 1 or steps < 0:
+        raise ValueError(f"need n_coef >= 1 and steps >= 0, got {n_coef}, {steps}")
     grid = grid or default_grid(robot, [tf], dwell)
     res, blend, law = paper_best(robot, cycle, payloads, tf, dwell, grid)
-    path = make_path(cycle, blend, 0.025)
     if progress:
         print(f"best paper combination at tf = {tf:g} s for {list(payloads)} kg: {blend} / {law}", flush=True)
+    paths = {"paper": make_path(cycle, blend, 0.025)}
     sets = {
         "nominal": model_set(robot, payloads),
         "perturbed": model_set(robot, payloads, stiffness=PERTURB_E, payload_scale=PERTURB_PAYLOAD),
         "damped": model_set(robot, payloads, damping_ratio=DAMPING_RATIO, cycle=cycle),
     }
-    evaluators = {k: LawEvaluator(s, path, tf, dwell, grid) for k, s in sets.items()}
-    train = evaluators["perturbed" if robust else "nominal"]
     freqs = tuple(place_first_mode_hz(robot.replace(payload=m), cycle) for m in payloads)
+    i_lame = res.blends.index("lame") if "lame" in res.blends else 0
+    torque_bound = np.asarray(res.metrics["max_torque_nm"][i_lame, res.profiles.index("poly7"), :])
 
-    # baselines: the best paper law, its shaped versions (tuned to the first payload's mode), Ruckig
-    laws = {f"{blend}/{law} (best paper)": make_profile(law)}
+    models = training_models(robot, payloads, train)
+    train_paper = LawEvaluator(models, paths["paper"], tf, dwell, grid)
+    scales = reference_scales(train_paper, make_profile(law), torque_bounds(models, cycle, tf, dwell, grid,
+                                                                             train_paper))
+    label = f"{'design' if free_path else 'law'} tf={tf:g}"
+    if free_path:
+        x0 = init if init is not None else start_design(cycle, n_coef)
+        result = train_design(models, cycle, tf, dwell, grid, scales, encode(cycle, x0), steps=steps,
+                              learning_rate=learning_rate, checkpoint=checkpoint, progress=progress, label=label)
+        x = jax.tree_util.tree_map(np.asarray, decode(cycle, result.params))
+        paths["optimized"] = design_path(cycle, x, BLEND_FAMILY)
+        coef = np.asarray(x.coef)
+    else:
+        c0 = np.ones(n_coef) if init is None else np.asarray(init.coef)
+        result = train_law(train_paper, paths["paper"], tf, scales, c0, steps=steps, learning_rate=learning_rate,
+                           checkpoint=checkpoint, progress=progress, label=label)
+        x, coef = None, np.asarray(result.params)
+        paths["optimized"] = paths["paper"]
+
+    # baselines on the best paper path: the best law, its shaped versions (first payload's mode), Ruckig
+    candidates = {f"{blend}/{law} (best paper)": Candidate("paper", make_profile(law))}
     for p in shaper_profiles(law, freqs[0], tf):
-        laws[f"{blend}/{p.name}"] = p
+        candidates[f"{blend}/{p.name}"] = Candidate("paper", p)
     limits = None
     if ruckig:
         try:
-            smp, limits = ruckig_samples(float(path.length), tf, grid)
-            laws[f"{blend}/ruckig"] = smp
+            smp, limits = ruckig_samples(float(paths["paper"].length), tf, grid)
+            candidates[f"{blend}/ruckig"] = Candidate("paper", smp)
         except ImportError as err:
             if progress:
                 print(f"  (Ruckig baseline skipped: {err})", flush=True)
-    ref = train(laws[f"{blend}/{law} (best paper)"])
-    i_lame = res.blends.index("lame") if "lame" in res.blends else 0
-    torque_bound = np.asarray(res.metrics["max_torque_nm"][i_lame, res.profiles.index("poly7"), :])
-    # per training model: the bound of its payload
-    k_per = len(train.models.labels) // len(payloads)
-    bound = jnp.asarray(np.repeat(torque_bound, k_per))
-    amp_ref = ref["dwell_residual_mm"] * 1e-3
-    scales = Scales(energy=jnp.asarray(ref["residual_energy"]), dwell_ms=jnp.asarray(amp_ref**2 / 2),
-                    torque_bound=bound)
-    result = train_law(train, path, tf, scales, jnp.ones(n_coef), steps=steps, learning_rate=learning_rate,
-                       checkpoint=checkpoint, progress=progress)
-    coef = np.asarray(result.params)
-    laws["optimized"] = shaped(jnp.asarray(coef), name="optimized")
-    evaluations = {name: {k: ev(p) for k, p in laws.items()} for name, ev in evaluators.items()}
+    candidates["optimized"] = Candidate("optimized", shaped(jnp.asarray(coef), name="optimized"))
+    evaluators = {k: {"paper": LawEvaluator(s, paths["paper"], tf, dwell, grid)} for k, s in sets.items()}
+    for k, s in sets.items():
+        evaluators[k]["optimized"] = (evaluators[k]["paper"] if paths["optimized"] is paths["paper"]
+                                      else LawEvaluator(s, paths["optimized"], tf, dwell, grid))
+    evaluations = {k: {name: evaluators[k][c.path](c.law) for name, c in candidates.items()} for k in sets}
     paper = {k: np.asarray(v) for k, v in res.metrics.items()}
-    return LawStudy(payloads, tf, blend, law, coef, result, evaluations,
-                    {k: s.labels for k, s in sets.items()}, paper, torque_bound, limits, freqs, grid,
-                    time.time() - started, laws, evaluators["nominal"])
+    return DesignStudy(payloads, tf, blend, law, x, coef, result, train, models.labels, candidates, paths, evaluations,
+                       {k: s.labels for k, s in sets.items()}, paper, torque_bound, limits, freqs, grid,
+                       time.time() - started, evaluators)
 
 
 @functools.lru_cache(maxsize=None)
-def _training_objective(grid: Grid, order: int = 3, torque_weight: float = TORQUE_WEIGHT):
-    """The law objective for one grid, as one function object per grid (so that ``minimize``
-    compiles once for every tf, payload set and scale of the same shapes)."""
+def _design_objective(grid: Grid, blend: str = BLEND_FAMILY, order: int = 3, torque_weight: float = TORQUE_WEIGHT):
+    """The design objective for one grid, one function object per static configuration (so that
+    ``minimize`` compiles once for every tf, payload set and scale of the same shapes)."""
+    def f(params, robots, cycle, tf, dwell, scales):
+        return objective(params, robots, cycle, tf, dwell, grid, scales, blend=blend, order=order,
+                         torque_weight=torque_weight)
+    return f
+
+
+@functools.lru_cache(maxsize=None)
+def _law_objective(grid: Grid, order: int = 3, torque_weight: float = TORQUE_WEIGHT):
     def f(coef, tables, length, tf, dwell, scales, robots):
         return law_objective(coef, tables, length, tf, dwell, grid, scales, order=order, robots=robots,
                              torque_weight=torque_weight)
     return f
 
 
-def train_law(train: LawEvaluator, path, tf: float, scales: Scales, init, *, steps: int = 150,
-              learning_rate: float = 0.05, checkpoint=None, progress: bool = True,
-              patience: int = 40) -> OptResult:
+def train_design(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid: Grid, scales: Scales,
+                 init: Params, *, steps: int = 100, learning_rate: float = 0.05, checkpoint=None,
+                 progress: bool = True, patience: int = 40, label: str = "design") -> OptResult:
+    """Optimize the design parameters (start ``init``) on ``models`` at motion time tf [s] with the
+    normalization ``scales`` (Adam; learning rate warmed up, then cosine-decayed)."""
+    f = _design_objective(grid)
+    args = (models.robots, cycle, jnp.asarray(tf, dtype=float), jnp.asarray(dwell, dtype=float), scales)
+    return minimize(f, init, args=args, steps=steps, learning_rate=learning_rate, checkpoint=checkpoint,
+                    patience=patience, progress=progress, label=label, decay=True, monitor=_dwell)
+
+
+def train_law(train: LawEvaluator, path: Path, tf: float, scales: Scales, init, *, steps: int = 100,
+              learning_rate: float = 0.05, checkpoint=None, progress: bool = True, patience: int = 40,
+              label: str = "law") -> OptResult:
     """Optimize the shaped-law coefficients (start ``init`` (m + 1,)) on the training models of
-    ``train`` at motion time tf [s] with the normalization ``scales``."""
-    f = _training_objective(train.grid)
+    ``train`` (its path) at motion time tf [s] with the normalization ``scales``."""
+    f = _law_objective(train.grid)
     args = (train.tables, jnp.asarray(path.length), jnp.asarray(tf, dtype=float),
             jnp.asarray(train.dwell, dtype=float), scales, train.models.robots)
     return minimize(f, jnp.asarray(init, dtype=float), args=args, steps=steps, learning_rate=learning_rate,
-                    checkpoint=checkpoint, patience=patience, progress=progress, label=f"law tf={tf:g}")
+                    checkpoint=checkpoint, patience=patience, progress=progress, label=label, decay=True,
+                    monitor=_dwell)
 
 
-def verify_law(robot: Robot, cycle: Cycle, blend: str, laws: dict, payload: float, tf: float, *,
-               dwell: float = 0.1, rk4_dt: float = 1e-5) -> dict:
-    """Independent check of the residual claims: every law (name -> Profile) re-simulated with the
-    fast model at a quarter of the default step and with the full nonlinear model by RK4 at
-    ``rk4_dt`` [s]. Returns law -> {method: dwell residual [mm]}."""
+def _dwell(aux):
+    """What the optimizer records per step beside the objective: the dwell residual [mm] of every
+    training model."""
+    return aux["metrics"]["dwell_residual_mm"]
+
+
+def verify(robot: Robot, cycle: Cycle, trajectories: dict, payload: float, tf: float, *, dwell: float = 0.1,
+           rk4_dt: float = 1e-5) -> dict:
+    """Independent check of the residual claims: every trajectory (name -> (Path, Profile)) is
+    re-simulated with the fast model at the default step, at a quarter of it, and with the full
+    nonlinear model by RK4 at ``rk4_dt`` [s]. Returns name -> {method: dwell residual [mm]}."""
     from jaxflex.metrics import metrics
     from jaxflex.reference import reference_rollout
-    from jaxflex.simulate import Grid
 
-    from .baselines import LawEvaluator, model_set
-
-    path = make_path(cycle, blend, 0.025)
     r = robot.replace(payload=payload)
     g = default_grid(robot, [tf], dwell)
     fine = Grid(coarse=4 * g.coarse, fine=g.fine, dwell_steps=4 * g.dwell_steps, squarings=g.squarings)
     models = model_set(robot, [payload])
-    out = {name: {} for name in laws}
+    out = {name: {} for name in trajectories}
     for label, grid in (("fast", g), ("fast dt/4", fine)):
-        ev = LawEvaluator(models, path, tf, dwell, grid)
-        for name, law in laws.items():
-            out[name][label] = float(ev(law)["dwell_residual_mm"][0])
-    ref = jax.vmap(metrics)(reference_rollout(r, path, list(laws.values()), tf, dwell, dt=rk4_dt))
-    for i, name in enumerate(laws):
+        for name, (path, law) in trajectories.items():
+            out[name][label] = float(LawEvaluator(models, path, tf, dwell, grid)(law)["dwell_residual_mm"][0])
+    paths, laws = zip(*trajectories.values())
+    ref = jax.vmap(metrics)(reference_rollout(r, list(paths), list(laws), tf, dwell, dt=rk4_dt))
+    for i, name in enumerate(trajectories):
         out[name][f"full model RK4 {rk4_dt:g} s"] = float(ref["dwell_residual_mm"][i])
     return out

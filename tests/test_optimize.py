@@ -41,13 +41,29 @@ def test_law_gradient_matches_central_differences_full_6kg_rollout():
 
 def test_decode_keeps_blends_within_the_legs_and_encode_inverts_it():
     cycle = cycle_preset()
-    x = design(d=0.02, e=0.05, n=4.0, coef=[1.0, 2.0])
+    x = design(d=0.02, e=0.05, n=4.0, coef=[1.0, 2.0], d2=0.01, e2=0.12, n2=2.5)   # asymmetric corners
     back = decode(cycle, encode(cycle, x))
     for a, b in zip(back, x):
         np.testing.assert_allclose(a, b, rtol=1e-12)
-    far = decode(cycle, Params(blend=jnp.asarray([30.0, 30.0, -30.0]), coef=jnp.ones(2)))
-    assert 0 < float(far.d) <= float(cycle.h) and 0 < float(far.e) <= 0.5 * float(cycle.l)
-    assert 2.0 <= float(far.n) <= 8.0
+    far = decode(cycle, Params(blend=jnp.asarray([30.0, 30.0, -30.0, -30.0, 30.0, 30.0]), coef=jnp.ones(2)))
+    assert far.d.shape == far.e.shape == far.n.shape == (2,)
+    assert np.all((0 < far.d) & (far.d <= cycle.h)) and np.all((0 < far.e) & (far.e <= 0.5 * cycle.l))
+    assert np.all((2.0 <= far.n) & (far.n <= 8.0))
+    make_path(cycle, "lame", *(float(v[i]) for i in range(2) for v in (far.d, far.e, far.n)))   # a valid path
+
+
+def test_combine_is_zero_for_the_reference_and_log_scaled():
+    """J = 0 when every model equals its reference; 100x less energy and mean-square amplitude (10x
+    less amplitude) gives log(1/100); the torque penalty starts at the bound."""
+    from jaxflex.optimize.objective import combine
+
+    scales = Scales(jnp.asarray([2.0, 3.0]), jnp.asarray([5.0, 7.0]), jnp.asarray(10.0))
+    terms = {"energy": scales.energy, "dwell_ms": scales.dwell_ms, "torque": jnp.asarray([9.0, 10.0])}
+    assert abs(float(combine(terms, scales))) < 1e-15
+    small = dict(terms, energy=scales.energy / 100, dwell_ms=scales.dwell_ms / 100)
+    np.testing.assert_allclose(float(combine(small, scales)), np.log(0.01), rtol=1e-14)
+    over = dict(terms, torque=jnp.asarray([11.0, 10.0]))              # 10 % above the bound
+    np.testing.assert_allclose(float(combine(over, scales, torque_weight=1e3)), 1e3 * 0.1**2, rtol=1e-12)
 
 
 def test_minimize_is_deterministic_and_resumes_from_a_checkpoint(tmp_path):
@@ -77,22 +93,32 @@ def test_minimize_reuses_its_compilation_for_new_argument_values():
                  progress=False, patience=300)
     b = minimize(f, jnp.zeros(2), args=(jnp.asarray([-1.0, 0.5]),), steps=300, learning_rate=0.1,
                  progress=False, patience=300)
+    # the schedule (warm-up, then cosine decay) and another rate and length: still the same program
+    minimize(f, jnp.zeros(2), args=(jnp.asarray([0.0, 0.0]),), steps=30, learning_rate=0.02, progress=False,
+             patience=300, decay=True)
     assert _update._cache_size() == before + 1
     np.testing.assert_allclose(a.params, [1.0, 2.0], atol=1e-2)     # Adam at lr 0.1: within 1e-2
     np.testing.assert_allclose(b.params, [-1.0, 0.5], atol=1e-2)
 
 
+def test_minimize_does_not_stop_early_on_negative_objectives():
+    """Log-scale objectives cross zero: the plateau test must still see progress below zero."""
+    f = lambda p: (jnp.log(1e-6 + jnp.sum((p - 3.0) ** 2)), {})
+    r = minimize(f, jnp.zeros(2), steps=400, learning_rate=0.05, progress=False, patience=20)
+    assert r.value < -5.0, (r.value, r.steps_run, r.stopped)        # |p - 3| < 0.06
+
+
 @pytest.mark.slow
 def test_design_gradient_wrt_blend_parameters_matches_central_differences():
-    """Gradient w.r.t. (u_d, u_e, u_n) and the law through table rebuild and rollout (slow: the
-    table build is differentiated; ~5 min to compile)."""
+    """Gradient w.r.t. the blend parameters (u_d, u_e, u_n of both corners) through table rebuild and
+    rollout (slow: the table build is differentiated; ~5 min to compile)."""
     robot, cycle = robot_preset("default"), cycle_preset()
     robots = stack_robots([robot.replace(payload=6.0)])
     grid = default_grid(robot, [TF], DWELL)
     scales = Scales(jnp.full(1, 1e-3), jnp.full(1, 1e-10), jnp.asarray(jnp.inf))
-    p0 = encode(cycle, design(d=0.02, e=0.03, n=3.5, coef=[1.0, 1.2, 0.9, 1.0]))
+    p0 = encode(cycle, design(d=0.02, e=0.03, n=3.5, coef=[1.0, 1.2, 0.9, 1.0], d2=0.022, e2=0.04, n2=3.2))
     f = jax.jit(lambda p: objective(p, robots, cycle, TF, DWELL, grid, scales))
-    (_, _), grad = jax.jit(value_and_grad_fwd(f))(p0)
-    for i in range(3):
+    (_, _), grad = jax.jit(jax.value_and_grad(f, has_aux=True))(p0)
+    for i in range(6):
         fd = float(_central(lambda u: f(Params(u, p0.coef))[0], p0.blend, i, 1e-4))
         assert abs(float(grad.blend[i]) - fd) <= 1e-5 * abs(fd), (i, float(grad.blend[i]), fd)

@@ -17,7 +17,8 @@ cycle = cycle_preset()
 grid = Grid(coarse=16, fine=4, dwell_steps=40, squarings=10)
 rng = np.random.default_rng(0)
 size = 5                                                 # not a multiple of the chunk: tests padding
-xs = Design(d=jnp.full(size, 0.025), e=jnp.linspace(0.02, 0.03, size), n=jnp.full(size, 3.0),
+corners = lambda v: jnp.stack([v, v[::-1]], axis=1)    # (size, 2): corner 1, corner 2
+xs = Design(d=jnp.full((size, 2), 0.025), e=corners(jnp.linspace(0.02, 0.03, size)), n=jnp.full((size, 2), 3.0),
             coef=jnp.asarray(1.0 + 0.3 * rng.random((size, 4))))
 kw = dict(tf=0.43, dwell=0.02, grid=grid, chunk=2)
 two = sweep_designs(robot, cycle, xs, **kw)
