@@ -70,9 +70,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="Adam learning rate (linear warm-up over the first 10 %% of the steps, then "
                         "a cosine decay to a tenth; default: %(default)s)")
     p.add_argument("--train", default="spanning", choices=["nominal", "spanning", "perturbed"],
-                   help="training models per payload: nominal; spanning (default: nominal plus the "
-                        "perturbation corners with the lowest and highest first frequency, E x0.95 / "
-                        "payload x1.1 and E x1.05 / payload x0.9); perturbed (all 9: E x0.95/1/1.05, "
+                   help="training models per payload: nominal; spanning (default: nominal plus the 4 "
+                        "corners E x0.95/1.05, payload x0.9/1.1); perturbed (all 9: E x0.95/1/1.05, "
                         "payload x0.9/1/1.1)")
     p.add_argument("--law-only", dest="free_path", action="store_false",
                    help="optimize the motion law only, on the best paper combination's path")

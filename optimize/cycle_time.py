@@ -28,7 +28,8 @@ from jaxflex.sweep import Case, default_grid, run_sweep
 
 from .baselines import LawEvaluator, model_set
 from .objective import decode, encode
-from .study import BLEND_FAMILY, reference_scales, start_design, torque_bounds, train_design, training_models
+from .study import (BLEND_FAMILY, reference_scales, start_design, torque_bounds, train_design, training_models,
+                    training_weights)
 
 TORQUE_TOL = 1.01   # a design counts when its peak torque is within 1 % of the bound (soft penalty)
 
@@ -90,7 +91,7 @@ def cycle_time_study(robot: Robot, cycle: Cycle, payload: float = 6.0, tf_ref: f
     params = encode(cycle, start_design(cycle, n_coef))
     opt_res, opt_worst, opt_tau, designs = [], [], [], []
     for tf in tfs:
-        scales = reference_scales(ref_eval, make_profile(law), bounds, tf=float(tf))
+        scales = reference_scales(ref_eval, make_profile(law), bounds, tf=float(tf), weights=training_weights(train))
         result = train_design(models, cycle, float(tf), dwell, grid, scales, params, steps=steps,
                               learning_rate=learning_rate, progress=progress, label=f"design tf={tf:g}")
         params = result.params

@@ -139,7 +139,8 @@ def minimize(f: Callable, params0, *, args: tuple = (), steps: int = 100, learni
     offset = times[-1] if times else 0.0
     started, last_gain, stopped = time.perf_counter(), step, "steps"
     while step < steps:
-        lr = jnp.asarray(learning_rate_at(step, steps, float(learning_rate), decay), dtype=jnp.float64)   # one type: no retrace
+        # always a strongly typed float64 scalar: a change of type would retrace the update
+        lr = jnp.asarray(learning_rate_at(step, steps, float(learning_rate), decay), dtype=jnp.float64)
         new_params, state, value, aux = update(params, state, args, lr)
         value = float(value)
         if not np.isfinite(value):

@@ -9,17 +9,18 @@ Parameters are unconstrained reals, decoded into a valid design by construction,
 - motion-law coefficients ``coef`` of the shaped family (``jaxflex.profiles.shaped``): monotone,
   S(0) = 0, S(1) = 1, zero velocity and acceleration (and jerk, order 3) at both ends for any values.
 
-The objective is the residual vibration at the place point relative to a reference run (usually
-the best paper combination on the same model), on a log scale:
+The objective is the residual vibration at the place point relative to reference values (usually
+the best paper combination on the same models), on a log scale:
 
-    J = log( mean_k (E_k / E_ref,k + A_k / A_ref,k) / 2 ) + w * sum_k max(tau_k / tau_max - 1, 0)^2
+    J = log( sum_k w_k (E_k / E_ref,k + A_k / A_ref,k) / 2 ) + W * sum_k max(tau_k / tau_max,k - 1, 0)^2
 
 with E the vibration energy at tf [J] and A the mean square dwell amplitude [m^2] of model k (a
-set of payloads, stiffness and payload perturbations: the robust variant), tau the peak motor
-torque and tau_max its bound. J = 0 for a design as good as the reference on every model; a design
-with 10x less residual amplitude and energy scaled alike scores log(1/100) = -4.6. The log keeps
-the gradient's scale (and Adam's steps) meaningful across the orders of magnitude the residual
-spans during an optimization. tf is fixed.
+set of payloads, stiffness and payload perturbations: the robust variant) with weight w_k (equal
+by default), tau the peak motor torque and tau_max its bound (``Scales``). J = 0 for a design as
+good as the reference on every model; a design with 10x less
+residual amplitude and energy scaled alike scores log(1/100) = -4.6. The log keeps the gradient's
+scale (and Adam's steps) meaningful across the orders of magnitude the residual spans during an
+optimization. tf is fixed.
 """
 from __future__ import annotations
 
@@ -67,11 +68,13 @@ def decode(cycle: Cycle, p: Params) -> Design:
 
 class Scales(NamedTuple):
     """Reference values per model (K,): vibration energy at tf [J] and mean square dwell amplitude
-    [m^2]; peak torque bound [N m] per model (K,) or scalar (inf: no bound)."""
+    [m^2]; peak torque bound [N m] per model (K,) or scalar (inf: no bound); optional weights (K,)
+    of the models in the mean (summing to 1; None: equal weights)."""
 
     energy: jax.Array
     dwell_ms: jax.Array
     torque_bound: jax.Array
+    weights: jax.Array | None = None
 
 
 def residual_terms(series) -> tuple:
@@ -87,7 +90,8 @@ def _terms(series) -> dict:
 
 def combine(terms: dict, scales: Scales, torque_weight: float = TORQUE_WEIGHT):
     """The scalar objective J (module docstring) from per-model terms (leaves (K,))."""
-    vib = jnp.mean(terms["energy"] / scales.energy + terms["dwell_ms"] / scales.dwell_ms)
+    per_model = terms["energy"] / scales.energy + terms["dwell_ms"] / scales.dwell_ms
+    vib = jnp.mean(per_model) if scales.weights is None else jnp.sum(scales.weights * per_model)
     excess = jnp.maximum(terms["torque"] / scales.torque_bound - 1.0, 0.0)
     return jnp.log(0.5 * vib) + torque_weight * jnp.sum(excess**2)
 

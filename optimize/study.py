@@ -16,9 +16,9 @@
    payload x {0.9, 1, 1.1}), and with 1 % damping at the first mode.
 
 Training sets (SPEC 6: a design counts only if its advantage survives model error): ``nominal``
-(the payloads), ``spanning`` (default: per payload the nominal model and the two corners of the
-perturbation box with the lowest and the highest first frequency, E x 0.95 / payload x 1.1 and
-E x 1.05 / payload x 0.9) or ``perturbed`` (all nine per payload).
+(the payloads), ``spanning`` (default: per payload the nominal model and the four corners of the
+perturbation box E x {0.95, 1.05}, payload x {0.9, 1.1}; the evaluation's four edge midpoints stay
+unseen) or ``perturbed`` (all nine models of the evaluation box per payload).
 """
 from __future__ import annotations
 
@@ -43,7 +43,7 @@ from .objective import TORQUE_WEIGHT, Params, Scales, decode, encode, law_object
 
 PERTURB_E = (0.95, 1.0, 1.05)
 PERTURB_PAYLOAD = (0.9, 1.0, 1.1)
-SPANNING = ((0.95, 1.1), (1.0, 1.0), (1.05, 0.9))     # (E factor, payload factor): low, nominal, high f1
+SPANNING = ((1.0, 1.0), (0.95, 0.9), (0.95, 1.1), (1.05, 0.9), (1.05, 1.1))   # (E factor, payload factor)
 DAMPING_RATIO = 0.01
 TRAINING_SETS = ("nominal", "spanning", "perturbed")
 BLEND_FAMILY = "lame"               # the optimized design's blend family (d, e, n per corner)
@@ -127,13 +127,34 @@ def torque_bounds(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid:
     return evaluator(make_profile("poly7"), tf=tf)["max_torque_nm"]
 
 
-def reference_scales(evaluator: LawEvaluator, law, torque_bound, tf: float | None = None) -> Scales:
-    """Objective scales from a reference law on the evaluator's path and models (K,) at motion time
-    tf [s] (default: the evaluator's), and the torque bound per model (K,) [N m]."""
+def training_weights(kind: str, n_payloads: int = 1) -> np.ndarray:
+    """Weights of the training models in the objective's mean (the payloads share it equally): a
+    probability over the perturbation box concentrated at the nominal model. ``spanning``: 1/2 for
+    the nominal model, 1/8 for each corner; ``perturbed``: Simpson's tensor weights (1, 4, 1)/6 per
+    axis (4/9 nominal, 1/9 edge midpoints, 1/36 corners); ``nominal``: 1."""
+    if kind == "nominal":
+        w = np.ones(1)
+    elif kind == "spanning":
+        w = np.array([0.5, 0.125, 0.125, 0.125, 0.125])
+    elif kind == "perturbed":
+        simpson = np.array([1.0, 4.0, 1.0]) / 6.0
+        w = np.outer(simpson, simpson).ravel()          # model_set order: E outer, payload inner
+    else:
+        raise ValueError(f"unknown training set {kind!r}; choose one of {TRAINING_SETS}")
+    return np.tile(w, n_payloads) / n_payloads
+
+
+def reference_scales(evaluator: LawEvaluator, law, torque_bound, tf: float | None = None,
+                     weights=None) -> Scales:
+    """Objective scales: each model (K,) of the evaluator is scaled by the reference law's own
+    vibration energy and mean-square dwell amplitude on that model at motion time tf [s] (default:
+    the evaluator's), so the objective measures the improvement over the reference model by model;
+    torque bound per model (K,) [N m]; ``weights`` (K,) of the models (None: equal)."""
     ref = evaluator(law, tf=tf)
     amp = ref["dwell_residual_mm"] * 1e-3
     return Scales(energy=jnp.asarray(ref["residual_energy"]), dwell_ms=jnp.asarray(amp**2 / 2),
-                  torque_bound=jnp.asarray(torque_bound, dtype=float))
+                  torque_bound=jnp.asarray(torque_bound, dtype=float),
+                  weights=None if weights is None else jnp.asarray(weights, dtype=float))
 
 
 def optimize_design(robot: Robot, cycle: Cycle, payloads: Sequence[float] = (6.0,), tf: float = 0.43, *,
@@ -164,8 +185,8 @@ def optimize_design(robot: Robot, cycle: Cycle, payloads: Sequence[float] = (6.0
 
     models = training_models(robot, payloads, train)
     train_paper = LawEvaluator(models, paths["paper"], tf, dwell, grid)
-    scales = reference_scales(train_paper, make_profile(law), torque_bounds(models, cycle, tf, dwell, grid,
-                                                                             train_paper))
+    bounds = torque_bounds(models, cycle, tf, dwell, grid, train_paper)
+    scales = reference_scales(train_paper, make_profile(law), bounds, weights=training_weights(train, len(payloads)))
     label = f"{'design' if free_path else 'law'} tf={tf:g}"
     if free_path:
         x0 = init if init is not None else start_design(cycle, n_coef)

@@ -58,21 +58,22 @@ def test_trajectory_csv_rows_follow_the_path_at_10khz():
 
 
 def test_spanning_training_set_brackets_the_first_frequency_of_the_perturbed_models():
-    """The spanning set's outer models have the lowest and highest first locked frequency of the nine
-    perturbed models (E x 0.95/1/1.05, payload x 0.9/1/1.1): training on it covers their range."""
+    """The spanning set (nominal and the four corners of the perturbation box) contains the models
+    with the lowest and the highest first locked frequency of the nine perturbed models (E x
+    0.95/1/1.05, payload x 0.9/1/1.1): training on it covers their range."""
     from jaxflex.optimize.study import training_models
 
     robot, cycle = robot_preset("default", n_bending=1, n_axial=1), cycle_preset()
     span = training_models(robot, [6.0], "spanning")
-    assert len(span.labels) == 3
-    np.testing.assert_allclose(np.asarray(span.robots.payload), [6.6, 6.0, 5.4])
-    np.testing.assert_allclose(np.asarray(span.robots.young) / float(robot.young), [0.95, 1.0, 1.05])
+    assert len(span.labels) == 5 and span.labels[0] == "6 kg x1, E x1"
+    np.testing.assert_allclose(np.asarray(span.robots.payload), [6.0, 5.4, 6.6, 5.4, 6.6])
+    np.testing.assert_allclose(np.asarray(span.robots.young) / float(robot.young), [1.0, 0.95, 0.95, 1.05, 1.05])
     pert = training_models(robot, [6.0], "perturbed")
     f = lambda ms, k: place_first_mode_hz(jax.tree_util.tree_map(lambda a: a[k], ms.robots), cycle)
-    span_f = [f(span, k) for k in range(3)]
+    span_f = [f(span, k) for k in range(5)]
     pert_f = [f(pert, k) for k in range(9)]
-    assert span_f[0] == pytest.approx(min(pert_f), rel=1e-12) and span_f[2] == pytest.approx(max(pert_f), rel=1e-12)
-    assert span_f[0] < span_f[1] < span_f[2]
-    assert len(training_models(robot, [0.1, 6.0], "spanning").labels) == 6
+    assert min(span_f) == pytest.approx(min(pert_f), rel=1e-12) and max(span_f) == pytest.approx(max(pert_f), rel=1e-12)
+    assert min(span_f) < span_f[0] < max(span_f)
+    assert len(training_models(robot, [0.1, 6.0], "spanning").labels) == 10
     with pytest.raises(ValueError, match="training set"):
         training_models(robot, [6.0], "robust")
