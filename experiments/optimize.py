@@ -263,31 +263,35 @@ def cycle_time_record(st) -> dict:
     """JSON record of a ``CycleTimeStudy``."""
     corners = lambda x: [{"d_m": float(x.d[i]), "e_m": float(x.e[i]), "n": float(x.n[i])} for i in range(2)]
     return {"payload": st.payload, "tf_ref": st.tf_ref, "train": st.train, "target_mm": st.target,
-            "torque_bound_nm": st.torque_bound, "tf_min": st.tf_min, "reduction": st.reduction, "wall_s": st.wall_s,
+            "target_perturbed_worst_mm": st.target_perturbed, "torque_bound_nm": st.torque_bound,
+            "tf_min": st.tf_min, "reduction": st.reduction, "tf_min_robust": st.tf_min_robust,
+            "reduction_robust": st.reduction_robust, "wall_s": st.wall_s,
             "rows": [{"tf": float(t), "paper_best": pb, "paper_best_mm": float(pr), "optimized_mm": float(o),
-                      "optimized_train_worst_mm": float(w), "optimized_torque_nm": float(tq),
+                      "optimized_perturbed_worst_mm": float(w), "optimized_torque_nm": float(tq),
                       "corners": corners(x), "coef": np.asarray(x.coef).tolist()}
                      for t, pb, pr, o, w, tq, x in zip(st.tfs, st.paper_best, st.paper_residual,
-                                                       st.optimized_residual, st.optimized_train_worst,
+                                                       st.optimized_residual, st.optimized_perturbed_worst,
                                                        st.optimized_torque, st.designs)]}
 
 
 def cycle_time_text(rec: dict) -> str:
     bound = rec["torque_bound_nm"]
     rows = [[fmt(r["tf"], 4), r["paper_best"], fmt(r["paper_best_mm"], 4), fmt(r["optimized_mm"], 4),
-             fmt(r["optimized_train_worst_mm"], 4), fmt(r["optimized_torque_nm"], 4),
+             fmt(r["optimized_perturbed_worst_mm"], 4), fmt(r["optimized_torque_nm"], 4),
              " / ".join(f"{1e3 * c['e_m']:.0f}" for c in r["corners"]),
              "yes" if r["optimized_mm"] <= rec["target_mm"] else "no",
              "yes" if r["optimized_torque_nm"] <= TORQUE_TOL * bound else "NO"] for r in rec["rows"]]
-    verdict = ("no tf in the list reaches it" if rec["tf_min"] is None else
-               f"shortest tf {rec['tf_min']:g} s: {100 * rec['reduction']:.1f} % shorter than {rec['tf_ref']:g} s")
+    verdict = lambda tf_min, red: ("no tf in the list reaches it" if tf_min is None else
+                                   f"shortest tf {tf_min:g} s, {100 * red:.1f} % shorter than {rec['tf_ref']:g} s")
     return (f"Cycle-time study, {rec['payload']:g} kg: optimized design (Lamé blends and motion law, trained on "
             f"the {rec['train']} models) at each tf; target: the best paper combination at tf = {rec['tf_ref']:g} s, "
-            f"dwell residual {rec['target_mm']:.4g} mm; peak torque bound {bound:.4g} N m at every tf (poly7-Lamé "
-            f"at {rec['tf_ref']:g} s: the same motors)\n\n"
-            + table(["tf [s]", "best paper", "best paper [mm]", "optimized [mm]", "training worst [mm]",
+            f"dwell residual {rec['target_mm']:.4g} mm (nominal; worst over the 9 perturbed models "
+            f"{rec['target_perturbed_worst_mm']:.4g} mm); peak torque bound {bound:.4g} N m at every tf "
+            f"(poly7-Lamé at {rec['tf_ref']:g} s: the same motors)\n\n"
+            + table(["tf [s]", "best paper", "best paper [mm]", "optimized [mm]", "optimized perturbed worst [mm]",
                      "torque [N m]", "e pick / place [mm]", "<= target", "torque <= bound"], rows)
-            + f"\n\n{verdict} (study {rec['wall_s']:.0f} s)")
+            + f"\n\nequal nominal residual: {verdict(rec['tf_min'], rec['reduction'])}; equal worst perturbed "
+              f"residual: {verdict(rec['tf_min_robust'], rec['reduction_robust'])} (study {rec['wall_s']:.0f} s)")
 
 
 def cycle_time_figure(rec: dict, out_path: Path):
@@ -297,8 +301,10 @@ def cycle_time_figure(rec: dict, out_path: Path):
     fig, ax = plt.subplots(figsize=(6, 4))
     ax.semilogy(tf, [r["paper_best_mm"] for r in rec["rows"]], "o-", label="best of the 12 paper combinations")
     ax.semilogy(tf, [r["optimized_mm"] for r in rec["rows"]], "s-", label="optimized design")
-    ax.semilogy(tf, [r["optimized_train_worst_mm"] for r in rec["rows"]], "s:", color="C1", lw=0.8,
-                label="optimized, worst training model")
+    ax.semilogy(tf, [r["optimized_perturbed_worst_mm"] for r in rec["rows"]], "s:", color="C1", lw=0.8,
+                label="optimized, worst of 9 perturbed models")
+    ax.axhline(rec["target_perturbed_worst_mm"], color="C0", ls=":", lw=0.8,
+               label=f"best paper at {rec['tf_ref']:g} s, worst perturbed")
     ax.axhline(rec["target_mm"], color="k", ls="--", lw=0.8, label=f"best paper at tf = {rec['tf_ref']:g} s")
     ax.set(xlabel="motion time tf [s]", ylabel="dwell residual [mm]",
            title=f"Residual vibration vs cycle time, {rec['payload']:g} kg")
