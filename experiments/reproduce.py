@@ -12,7 +12,7 @@ import numpy as np
 
 from . import convergence, kinematics, modes, vibration
 from . import vibration as vibration_study
-from jaxflex.compiled import release_compiled
+from jaxflex.compiled import release_compiled, run_isolated
 
 from .io import provenance, resumable, table, write_json, write_text
 
@@ -69,13 +69,13 @@ def run(out: str = "results", quick: bool = False, vibration: bool = True, optim
         release_compiled()
         if not quick:
             print("== step convergence and full-model cross-check", flush=True)
-            conv = {"dt": resumable(out / "convergence_dt.json", key, convergence.dt_study, "dt study")}
-            release_compiled()
-            conv["reference"] = resumable(out / "convergence_reference.json", key, convergence.reference_study,
-                                          "full-model check")
+            conv = {"dt": resumable(out / "convergence_dt.json", key,
+                                    lambda: run_isolated(convergence.dt_study), "dt study")}
+            conv["reference"] = resumable(out / "convergence_reference.json", key,
+                                          lambda: run_isolated(convergence.reference_study), "full-model check")
             release_compiled()
             results["convergence"] = conv
-            sections.append(_convergence_section(conv))
+            sections.append(_convergence_section(conv, vib))
 
     if optimize:
         print("== optimization study (beyond the paper)", flush=True)
@@ -95,7 +95,9 @@ def run(out: str = "results", quick: bool = False, vibration: bool = True, optim
     return results
 
 
-OPT_CASES = ((6.0,), 0.43), ((0.1,), 0.3), ((0.1, 6.0), 0.43)   # payloads [kg], tf [s]
+# payloads [kg], tf [s], training models, motion-law coefficients. The design for both payloads trains
+# on the two nominal models (a 5-model box per payload converges ~30x slower) with a richer law.
+OPT_CASES = (((6.0,), 0.43, "spanning", 6), ((0.1,), 0.3, "spanning", 6), ((0.1, 6.0), 0.43, "nominal", 8))
 
 
 def _optimization(out: Path, quick: bool, key: dict) -> dict:
@@ -109,21 +111,24 @@ def _optimization(out: Path, quick: bool, key: dict) -> dict:
     from . import optimize as opt
 
     steps = 20 if quick else 100
+    # Full runs give each study a process of its own (memory mappings, see jaxflex.compiled); quick
+    # runs stay in this process and share its compiled gradient.
+    isolated = (lambda fn, **kw: fn(**kw)) if quick else run_isolated
     grid = default_grid(robot_preset("default"), [0.43], 0.1, dt=2e-4 if quick else None)
     res = {"cases": []}
-    for payloads, tf in OPT_CASES:
+    for payloads, tf, train, n_coef in OPT_CASES:
         name = "_".join(f"{m:g}" for m in payloads)
         d = out / f"optimize_{name}kg"
         rec = resumable(d / "study.json", key,
-                        lambda: opt.compute(payloads=payloads, tf=tf, steps=steps, out=str(d), grid=grid,
-                                            verify=not quick),
+                        lambda: isolated(opt.compute, payloads=payloads, tf=tf, steps=steps, out=str(d),
+                                         grid=grid, train=train, n_coef=n_coef, verify=not quick),
                         f"optimization {name} kg")
         res["cases"].append({"dir": d.relative_to(out).as_posix(), "text": opt.text(rec), "record": rec})
         release_compiled()
     tfs = (0.43, 0.37) if quick else (0.43, 0.40, 0.37, 0.34, 0.31)
     ct = resumable(out / "cycle_time" / "study.json", key,
-                   lambda: opt.run_cycle_time(payload=6.0, tf_ref=0.43, tfs=tfs, steps=steps,
-                                              out=str(out / "cycle_time")), "cycle-time study")
+                   lambda: isolated(opt.run_cycle_time, payload=6.0, tf_ref=0.43, tfs=tfs, steps=steps,
+                                    out=str(out / "cycle_time")), "cycle-time study")
     res["cycle_time"] = {"dir": "cycle_time", "text": opt.cycle_time_text(ct), "record": ct}
     return res
 
@@ -135,9 +140,10 @@ def _optimization_section(res: dict, out: Path) -> str:
              "through the table build and the whole second-order rollout, Adam) to minimize the residual "
              "vibration (energy at tf and dwell amplitude, on a log scale, relative to the best paper "
              "combination), with the peak torque bounded by the poly7-Lamé combination's. It starts from the "
-             "paper's Lamé path with poly7 and trains on three models per payload: nominal and the two "
-             "corners of the perturbation box with the lowest and highest first frequency (SPEC 6: a design "
-             "counts only if its advantage survives model error). Baselines on the same models at equal "
+             "paper's Lamé path with poly7 and trains on five models per payload, each normalized by its own "
+             "best-paper reference: the nominal model (weight 1/2) and the four corners of the perturbation "
+             "box, E x 0.95/1.05 by payload x 0.9/1.1 (1/8 each; SPEC 6: a design counts only if its "
+             "advantage survives model error). Baselines on the same models at equal "
              "time, along the best paper combination's path: the best paper combination, its ZV and ZVD "
              "input shaping (first mode of the place pose) and a Ruckig jerk-limited profile (if `ruckig` "
              "is installed). Every trajectory is evaluated on the nominal model, on nine perturbed models "
@@ -289,17 +295,39 @@ def _vibration_section(vib: dict, fig_dir: Path, out: Path) -> str:
     return "\n".join(text)
 
 
-def _convergence_section(conv: dict) -> str:
+def _run_value(vib: dict, metric: str, run: str) -> tuple[float, float]:
+    """A metric's value at the run labelled 'blend/profile/payload kg' (base grid, from the vibration
+    study) and its median over the 24 runs."""
+    blend, profile, payload = run.split("/")
+    k = next(i for i, c in enumerate(vib["cases"]) if f"{c['payload']:g} kg" == payload)
+    values = [v for i in range(len(vib["cases"])) for row in vib[f"case{i}"][metric].values() for v in row.values()]
+    return vib[f"case{k}"][metric][blend][profile], float(np.median(values))
+
+
+def _convergence_section(conv: dict, vib: dict) -> str:
     ref = conv["reference"]
     rel = lambda m: max(abs(a / b - 1) for a, b in zip(ref["metrics"][m]["fast"], ref["metrics"][m]["full"]))
     others = [m for m in ref["metrics"] if m != "residual_acc"]
     worst = max(others, key=rel)
     acc_dt = next(r for r in conv["dt"]["rows"] if r["metric"] == "residual_acc")["max_rel_change"]
     low_dt = next((r for r in conv["dt"]["rows"] if r["metric"] == "residual_acc_low"), None)
-    low_line = ("" if low_dt is None else
-                f" Its low-mode part `residual_acc_low` (the modes below 1 kHz, what a sensor with a 1 kHz "
-                f"bandwidth sees) changes by {100 * low_dt['max_rel_change']:.2f} % and is the converged "
-                "acceleration figure we report beside it.")
+    low_line = ""
+    if low_dt is not None and low_dt["max_rel_change"] < low_dt["limit"]:
+        low_line = (f" Its low-mode part `residual_acc_low` (the modes below 1 kHz, what a sensor with a 1 kHz "
+                    f"bandwidth sees) changes by {100 * low_dt['max_rel_change']:.2f} % and is the converged "
+                    "acceleration figure we report beside it.")
+    elif low_dt is not None:
+        value, median = _run_value(vib, "residual_acc_low", low_dt["worst_run"])
+        low_line = (
+            f" Its low-mode part `residual_acc_low` (the modes below 1 kHz, what a sensor with a 1 kHz "
+            f"bandwidth sees) changes by up to {100 * low_dt['max_rel_change']:.2f} %, above the 2 % limit, "
+            f"at {low_dt['worst_run']}, where it is {value:.3g} m/s^2 against a median of {median:.3g} m/s^2 "
+            "over the 24 runs: the modal contributions nearly cancel at tf there, so a small absolute change "
+            "is a large relative one. The error is second order in the coarse table interval and comes from "
+            "interpolating the second-order remainder linearly between interval boundaries (the first-order "
+            "model alone converges to 0.05 %); sampling the remainder twice as densely should cut it about four "
+            "times, at about 30 % more run time. We did not buy it: no other metric needs it and the optimization's residual claims are "
+            "re-checked with the full model.")
     return "\n".join([
         "## 4. Step convergence and the full nonlinear model", "",
         "### dt convergence (SPEC 5)", "", convergence.dt_markdown(conv["dt"]), "",

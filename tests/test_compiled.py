@@ -31,3 +31,31 @@ def test_release_compiled_returns_the_mappings_of_compiled_programs():
     release_compiled()
     # most of them are returned (the rest: allocator pools that stay with the process)
     assert loaded - mapping_count() > 0.5 * (loaded - before), (before, loaded, mapping_count())
+
+
+def _mappings_after_compiling(n):
+    """In the calling process: compile and run a program of about n kernels, return the process's
+    mapping count and the result's dtype (float64 expected: the parent's setting carried over)."""
+    x = jnp.linspace(0.0, 1.0, 16 * 16).reshape(16, 16)
+    y = _program(n)(x).block_until_ready()
+    return mapping_count(), str(y.dtype)
+
+
+def _fails():
+    raise ValueError("bad design: e beyond the leg")
+
+
+@pytest.mark.skipif(mapping_count() is None, reason="needs /proc/self/maps (Linux)")
+def test_run_isolated_compiles_in_a_child_and_keeps_settings_and_errors():
+    """``run_isolated`` runs in a fresh process: the parent's mapping count does not grow by the
+    child's program, float64 carries over, and the child's exception reaches the caller."""
+    from jaxflex.compiled import run_isolated
+
+    release_compiled()
+    before = mapping_count()
+    child_maps, dtype = run_isolated(_mappings_after_compiling, 60)
+    assert dtype == "float64"
+    # the child loaded 60 kernels; the parent gains at most the pool's pipes and threads
+    assert mapping_count() - before < 50, (before, mapping_count(), child_maps)
+    with pytest.raises(ValueError, match="beyond the leg"):
+        run_isolated(_fails)
