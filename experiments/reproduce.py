@@ -96,7 +96,7 @@ def run(out: str = "results", quick: bool = False, vibration: bool = True, optim
 
 
 # payloads [kg], tf [s], training models, motion-law coefficients. The design for both payloads trains
-# on the two nominal models (a 5-model box per payload converges ~30x slower) with a richer law.
+# on the two nominal models (on a 5-model box per payload it reached only 2-3x in 100 steps) with a richer law.
 OPT_CASES = (((6.0,), 0.43, "spanning", 6), ((0.1,), 0.3, "spanning", 6), ((0.1, 6.0), 0.43, "nominal", 8))
 
 
@@ -149,7 +149,10 @@ def _optimization_section(res: dict, out: Path) -> str:
              "is installed). Every trajectory is evaluated on the nominal model, on nine perturbed models "
              "(E x 0.95/1/1.05, payload x 0.9/1/1.1) and with 1 % damping; the verification re-simulates the "
              "best paper combination and the optimized design at a quarter step and with the full nonlinear "
-             "model (RK4).", ""]
+             "model (RK4). The design for both payloads at once trains on the two nominal models only, with "
+             "eight law coefficients: trained on the box of five models per payload (and six coefficients) it "
+             "reached only 2.2x / 3.4x after 100 steps in our development runs; its perturbed columns show what the nominal training costs in "
+             "robustness to model error.", ""]
     for case in res["cases"]:
         d = case["dir"]
         lines += ["```", case["text"], "```", "",
@@ -342,7 +345,12 @@ def _convergence_section(conv: dict, vib: dict) -> str:
         "second-order remainder (`simulate.rollout`). The reference is the full nonlinear model "
         "(`jaxflex.model.inverse_dynamics`) integrated by RK4.", "",
         convergence.reference_markdown(ref), "",
-        f"Every metric but `residual_acc` agrees within {100 * rel(worst):.2f} % (largest: `{worst}`; "
-        f"SPEC 4: 0.5 %). `residual_acc` differs by up to {100 * rel('residual_acc'):.1f} %: RK4 damps "
+        f"Every metric but `residual_acc` agrees within {100 * rel(worst):.2f} % (largest: `{worst}`); "
+        + (f"every one within the 0.5 % of SPEC 4. " if rel(worst) <= 0.005 else
+           "beyond the 0.5 % of SPEC 4: " + ", ".join(f"`{m}` ({100 * rel(m):.2f} %)" for m in others
+                                                    if rel(m) > 0.005)
+           + ", a quantity at the single instant tf, where the fast model's dt error is of the same size "
+             "(section above). ")
+        + f"`residual_acc` differs by up to {100 * rel('residual_acc'):.1f} %: RK4 damps "
         "the 18 kHz axial mode numerically at any affordable step, the exponential propagator keeps it "
         "(SPEC 5). Residual claims of the optimization study are re-checked with the full model.", ""])

@@ -90,7 +90,7 @@ def cycle_time_study(robot: Robot, cycle: Cycle, payload: float = 6.0, tf_ref: f
     if progress:
         print(f"cycle-time study, {payload:g} kg: best paper at tf_ref = {tf_ref:g} s is {blend}/{law}, "
               f"dwell residual {target:.4g} mm; torque bound {bound:.1f} N m; optimizing designs for "
-              f"tf = {list(np.round(tfs, 4))}", flush=True)
+              f"tf = {', '.join(f'{t:g}' for t in np.asarray(tfs, dtype=float))} s", flush=True)
     models = training_models(robot, [payload], train)
     ref_eval = LawEvaluator(models, make_path(cycle, blend, 0.025), tf_ref, dwell, grid)
     bounds = torque_bounds(models, cycle, tf_ref, dwell, grid, ref_eval)       # per training model
