@@ -84,6 +84,7 @@ def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwe
 
 
 def compute(repeats: int = 5) -> dict:
+    """Time the 24-rollout sweep and the law/design gradients (median of ``repeats``); the JSON record."""
     started = time.time()
     robot, cycle = robot_preset("default"), cycle_preset()
     print("sweep: 12 combinations x 2 cases (6 kg/0.43 s, 0.1 kg/0.3 s), motion + 0.1 s dwell ...",
@@ -113,6 +114,7 @@ def compute(repeats: int = 5) -> dict:
 
 
 def run(repeats: int = 5, json_path=None) -> dict:
+    """``jaxflex bench``: ``compute`` and, with ``json_path``, write its record there."""
     rec = compute(repeats)
     if json_path:
         write_json(json_path, rec)

@@ -50,6 +50,7 @@ def dt_study(dwell: float = 0.1) -> dict:
 
 
 def dt_markdown(study: dict) -> str:
+    """The dt-convergence table (largest relative change [%] per metric, limit, worst run) as Markdown."""
     g0, g1 = study["grids"]["base"], study["grids"]["quarter"]
     rows = [[r["metric"], f"{100 * r['max_rel_change']:.3f}", f"{100 * r['limit']:.0f}", r["worst_run"],
              "yes" if r["max_rel_change"] < r["limit"] else "NO"] for r in study["rows"]]
@@ -75,6 +76,7 @@ def reference_study(dt: float = 1e-5, payload: float = 6.0, tf: float = 0.43, dw
 
 
 def reference_markdown(study: dict) -> str:
+    """Fast minus full-model metrics, relative [%], one column per motion law, as Markdown."""
     rows = []
     for m, v in study["metrics"].items():
         rel = [100 * (a / b - 1) for a, b in zip(v["fast"], v["full"])]

@@ -90,6 +90,8 @@ def figure(results: list[dict]):
 
 
 def run(preset="default", payload=6.0, points=21, json_path=None, out=None) -> dict:
+    """``jaxflex modes``: natural frequencies along the path for ``payload`` [kg] at ``points`` poses; prints
+    the table, optional JSON and figure."""
     res = compute(preset, payload, points)
     print(text(res))
     if json_path:

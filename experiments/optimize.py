@@ -43,6 +43,7 @@ def _positions(robot, path, profile, eta):
 
 
 def write_trajectory_csv(path_out, rows: np.ndarray) -> None:
+    """Write (N, 5) rows t [s], x, y [m], q1, q2 [rad] as CSV with a header, atomically."""
     with atomic_path(path_out) as tmp:
         np.savetxt(tmp, rows, delimiter=",", header="t,x,y,q1,q2", comments="", fmt="%.12g")
 
@@ -105,6 +106,8 @@ def milestones(study, factors=(5.0, 10.0)) -> dict:
 
 
 def text(rec: dict) -> str:
+    """The study record as text: design, comparison table (dwell residual [mm], ratios, perturbed, damped,
+    torque [N m]), optimizer timing, milestones and verification."""
     head = ["trajectory", "dwell [mm]", "x best paper", "perturbed worst [mm]", "x (worst/worst)",
             "min x per model", "damped [mm]", "torque [N m]"]
     j = lambda v: " / ".join(fmt(x, 3) for x in v)
@@ -252,6 +255,8 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, steps=100, n_coef=6, tra
 
 def run(preset="default", payloads=(6.0,), tf=0.43, steps=100, n_coef=6, train="spanning", free_path=True,
         out=None, json_path=None, learning_rate=0.05, verify=False) -> dict:
+    """``jaxflex optimize``: ``compute`` with the CLI's arguments (payloads [kg], tf [s]), print the text and
+    write the JSON."""
     rec = compute(preset, payloads, tf, steps, n_coef, train, free_path, out, learning_rate, verify)
     print(text(rec))
     if json_path:
@@ -275,6 +280,7 @@ def cycle_time_record(st) -> dict:
 
 
 def cycle_time_text(rec: dict) -> str:
+    """The cycle-time record as text: target, one row per tf [s] (residuals [mm], torque [N m]), verdicts."""
     bound = rec["torque_bound_nm"]
     rows = [[fmt(r["tf"], 4), r["paper_best"], fmt(r["paper_best_mm"], 4), fmt(r["optimized_mm"], 4),
              fmt(r["optimized_perturbed_worst_mm"], 4), fmt(r["optimized_torque_nm"], 4),
@@ -298,6 +304,8 @@ def cycle_time_text(rec: dict) -> str:
 
 
 def cycle_time_figure(rec: dict, out_path: Path):
+    """Pareto figure: dwell residual [mm] against tf [s], best paper vs optimized, target line; saved to
+    ``out_path``."""
     import matplotlib.pyplot as plt
 
     tf = [r["tf"] for r in rec["rows"]]
@@ -318,6 +326,8 @@ def cycle_time_figure(rec: dict, out_path: Path):
 
 def run_cycle_time(preset="default", payload=6.0, tf_ref=0.43, tfs=(0.43, 0.40, 0.37, 0.34, 0.31), steps=100,
                    n_coef=6, train="spanning", out=None, json_path=None, learning_rate=0.05) -> dict:
+    """``jaxflex optimize --cycle-time``: a design optimized at each tf in ``tfs`` [s] for ``payload`` [kg]
+    against the best paper combination at ``tf_ref``; prints, writes JSON/figure, returns the record."""
     from jaxflex.optimize.cycle_time import cycle_time_study
 
     started = time.time()

@@ -152,8 +152,8 @@ def _optimization_section(res: dict, out: Path) -> str:
              "best paper combination and the optimized design at a quarter step and with the full nonlinear "
              "model (RK4). The design for both payloads at once trains on the two nominal models only, with "
              "eight law coefficients: trained on the box of five models per payload (and six coefficients) it "
-             "reached only 2.2x / 3.4x after 100 steps in our development runs; its perturbed columns show what the nominal training costs in "
-             "robustness to model error.", ""]
+             "reached only 2.2x / 3.4x after 100 steps in our development runs; its perturbed columns show "
+             "what the nominal training costs in robustness to model error.", ""]
     for case in res["cases"]:
         d = case["dir"]
         lines += ["```", case["text"], "```", "",
@@ -330,8 +330,8 @@ def _convergence_section(conv: dict, vib: dict) -> str:
             "is a large relative one. The error is second order in the coarse table interval and comes from "
             "interpolating the second-order remainder linearly between interval boundaries (the first-order "
             "model alone converges to 0.05 %); sampling the remainder twice as densely should cut it about four "
-            "times, at about 30 % more run time. We did not buy it: no other metric needs it and the optimization's residual claims are "
-            "re-checked with the full model.")
+            "times, at about 30 % more run time. Not done yet: no other metric needs it, and the "
+            "optimization's residual claims are re-checked with the full model.")
     return "\n".join([
         "## 4. Step convergence and the full nonlinear model", "",
         "### dt convergence (SPEC 5)", "", convergence.dt_markdown(conv["dt"]), "",

@@ -29,6 +29,7 @@ def compute(preset: str = "default", payload: float = 6.0, tf: float = 0.43, dt:
 
 
 def text(rec: dict) -> str:
+    """The sweep record as a table (every SPEC 5 metric per blend and profile, with units) plus timing."""
     head = ["blend", "profile"] + [f"{SHORT[m]} [{UNITS[m]}]" for m in METRICS]
     rows = [[r["blend"], r["profile"]] + [fmt(r[m], 4) for m in METRICS] for r in rec["results"]]
     t = rec["timing"]
@@ -38,6 +39,8 @@ def text(rec: dict) -> str:
 
 
 def run(preset="default", payload=6.0, tf=0.43, dt=None, dwell=0.1, json_path=None) -> dict:
+    """``jaxflex sweep``: the 12 combinations for ``payload`` [kg], ``tf`` [s], optional ``dt`` [s] and
+    ``dwell`` [s]; prints the table and writes the JSON."""
     rec = compute(preset, payload, tf, dt, dwell)
     print(text(rec))
     if json_path:

@@ -49,6 +49,8 @@ def dwell_spectrum(series, top: int = 3):
 
 
 def compute(quick: bool = False) -> dict:
+    """The paper's vibration study (Tables 7-11, Fig. 12 data, dwell spectra) for both paper cases; ``quick``:
+    coarse grid."""
     started = time.time()
     robot, cycle = robot_preset("default"), cycle_preset()
     dt = 2e-4 if quick else None
@@ -96,6 +98,7 @@ def compute(quick: bool = False) -> dict:
 
 
 def compare(ours: dict, paper: dict, metric: str, blends=("lame", "clothoid", "polar")) -> str:
+    """Ours beside the paper's for one metric (rows: profiles; columns: blend ours/paper/diff %) as Markdown."""
     head = ["profile"] + [f"{b} {w}" for b in blends for w in ("ours", "paper", "diff")]
     rows = []
     for p in PROFILES:
@@ -114,6 +117,7 @@ def ours_only(ours: dict, metric: str, blends=("lame", "clothoid", "polar")) -> 
 
 
 def table11(ext: dict, case0: dict, case_index: int) -> str:
+    """Table 11 (short vs extended blends, residuals at tf) ours beside the paper's, as Markdown."""
     cols = paper_data.TABLE11_COLUMNS
     out = []
     for m in ("residual_pos_mm", "residual_vel", "residual_acc"):
@@ -142,4 +146,5 @@ def duplicated_cells() -> list[str]:
 
 
 def unit(metric):
+    """The unit of a SPEC 5 metric (``jaxflex.metrics.UNITS``)."""
     return UNITS[metric]
