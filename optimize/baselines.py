@@ -138,6 +138,12 @@ class LawEvaluator:
         self.models, self.path, self.tf, self.dwell, self.grid = models, path, tf, dwell, grid
         self.tables = _model_tables(models.robots, path)
 
+    def with_grid(self, grid: Grid) -> "LawEvaluator":
+        """The same path and models on another grid, sharing the tables (they do not depend on it)."""
+        other = object.__new__(LawEvaluator)
+        other.__dict__.update(self.__dict__, grid=grid)
+        return other
+
     def samples(self, profile: Profile, tf: float | None = None) -> MotionSamples:
         from jaxflex.simulate import motion_samples
 
