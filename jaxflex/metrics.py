@@ -9,8 +9,11 @@ carried by the modes below 1 kHz [m/s^2] (``simulate.low_mode_acceleration``). O
 energy of the elastic state at tf relative to the static equilibrium at the place pose.
 
 Acceleration metrics contain every mode of the model (up to ~18 kHz), undamped, evaluated exactly
-at the sample instants (no numerical damping); they are sensitive to those modes by nature.
-``residual_acc_low`` is the converged variant (it excludes the modes above 1 kHz).
+at the sample instants: no filter and no numerical damping. They converge in dt because the rollout's
+second pass makes the coefficients continuous in time (``jaxflex.simulate``): frozen coefficients that
+jump at interval boundaries would kick the kHz modes artificially. ``residual_acc_low`` is the part
+of the residual acceleration carried by the modes below 1 kHz (what a sensor with a 1 kHz bandwidth
+would see).
 """
 from __future__ import annotations
 

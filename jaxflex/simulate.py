@@ -12,9 +12,16 @@ for that frozen system, with the forcing linear over the step (first-order hold 
 end values). The propagator exp(A h) is unconditionally stable and has no numerical damping or
 dispersion: the kHz axial modes keep their exact frequency and amplitude at any h. Outputs (end-
 effector error, its derivatives, motor torques) are evaluated at every fine node. The run starts
-from the static equilibrium at the pick pose. Given the robot, ``rollout`` adds a second pass with the
-full model's second-order remainder (``_second_order_forcing``), which brings the residuals within
-0.3 % of the full nonlinear model (tests/test_reference.py).
+from the static equilibrium at the pick pose.
+
+A second pass (``_second_pass_forcing``, on by default) corrects the first along its solution:
+(1) the frozen coefficients jump at every interval boundary and each jump kicks the undamped kHz
+modes, an artefact that does not shrink with the interval and dominated |e''| at one instant; the
+second pass adds the force of the coefficients' variation (linear in time between the boundary
+values), so the effective coefficients are continuous (``Grid.continuous``); (2) given the robot,
+the full model's second-order remainder along the first pass (``Grid.remainder_points`` samples per
+interval), which brings every metric within about 0.3 % of the full nonlinear model
+(tests/test_reference.py).
 
 All functions are pure; ``rollout`` is written for one trajectory and vmapped by the sweep.
 """
@@ -35,13 +42,18 @@ from jaxflex.profiles import Profile, profile_eval
 class Grid(NamedTuple):
     """Static discretization. ``coarse`` intervals over [0, tf] (a multiple of 8, so that tf/8, tf/4
     and tf/2 are interval boundaries), ``fine`` steps per interval, ``dwell_steps`` over the dwell,
-    ``squarings`` of the matrix exponential (see ``squarings_for_robot``)."""
+    ``squarings`` of the matrix exponential (see ``squarings_for_robot``), the scan ``unroll``;
+    ``remainder_points`` samples of the second-order remainder per coarse interval and
+    ``continuous``: correct the frozen coefficients to continuous ones in the second pass (see the
+    module docstring; False reproduces the plain frozen-coefficient integrator)."""
 
     coarse: int = 96
     fine: int = 48
     dwell_steps: int = 1000
     squarings: int = 8
     unroll: int = 8
+    remainder_points: int = 2
+    continuous: bool = True
 
     @property
     def steps(self) -> int:
@@ -154,7 +166,8 @@ class _Frozen(NamedTuple):
     phi: jax.Array      # (2ne, 2ne) state transition over one fine step
     g0: jax.Array       # (2ne, ne) response to a constant unit force over the step
     g1: jax.Array       # (2ne, ne) response to a unit force ramp (0 -> 1) over the step
-    minv: jax.Array     # (ne, ne)
+    mass: jax.Array     # (ne, ne)
+    minv: jax.Array
     k: jax.Array
     c: jax.Array
     tq: jax.Array
@@ -197,7 +210,7 @@ def _frozen(c: dict, ds, dds, h, squarings) -> _Frozen:
     tq = c["tq0"] + c["tq2"] * ds**2 + c["tq1"] * dds
     tv = c["tv0"] + c["tv1"] * ds
     phi, g0, g1 = _propagator(c["mass"], k, cc, h, squarings)
-    return _Frozen(phi, g0, g1, linalg.inv(c["mass"]), k, cc, tq, tv, c["m_ae"])
+    return _Frozen(phi, g0, g1, c["mass"], linalg.inv(c["mass"]), k, cc, tq, tv, c["m_ae"])
 
 
 def _forcing(c: dict, ds, dds):
@@ -233,7 +246,7 @@ def _motion(x0, frozen, f_start, f_end, tr_start, fast_start, ds, dds, grid: Gri
     """March the elastic state over [0, tf]: every coarse interval frozen, every fine step exact.
 
     Returns x(tf) and either the outputs [e, e', e'', tau] (N, 4, 2) at every fine node or, with
-    ``states``, the state x (Nc, 2 ne) and q_e'' (Nc, ne) at the start of every coarse interval."""
+    ``states``, the state x (N, 2 ne) at the start of every fine step."""
     nc, m = grid.coarse, grid.fine
     per = lambda a: a.reshape((nc, m) + a.shape[1:])
     xs = (frozen, per(f_start), per(f_end), per(tr_start),
@@ -243,51 +256,114 @@ def _motion(x0, frozen, f_start, f_end, tr_start, fast_start, ds, dds, grid: Gri
     def coarse_step(x, inp):
         fz, fs, fe, trs, cs, dss, ddss = inp
         b = fs @ fz.g0.T + (fe - fs) @ fz.g1.T                       # (m, 2 ne) forcing increments
-        if states:
-            x_end = _recurrence(fz.phi, x, b, grid.unroll, keep=False)
-            ne = fs.shape[-1]
-            return x_end, (x, fz.minv @ (fs[0] - fz.c @ x[ne:] - fz.k @ x[:ne]))
         x_end, x_start = _recurrence(fz.phi, x, b, grid.unroll)
-        return x_end, outputs(fz, cs, dss, ddss, x_start, fs, trs)
+        return x_end, (x_start if states else outputs(fz, cs, dss, ddss, x_start, fs, trs))
 
     x_tf, ys = jax.lax.scan(coarse_step, x0, xs)
-    if states:
-        return x_tf, ys
     return x_tf, ys.reshape((nc * m,) + ys.shape[2:])
 
 
-def _second_order_forcing(robot, x0, frozen, fast_start, fast_end, samples, grid, f_start, f_end,
-                          tr_start, tr_end):
-    """Forcing and torques with the full model's second-order remainder (see ``rollout``).
+def _jump_nodes(grid: Grid) -> np.ndarray:
+    """Fine-node indices of tf/8, 2 tf/8, ..., tf: where the paper laws' s'' may jump."""
+    return np.arange(1, 9) * (grid.coarse // 8) * grid.fine
 
-    The remainder is evaluated along the first-order solution at the coarse interval boundaries
-    (right limits, plus left limits at multiples of tf/8 where the paper laws' acceleration jumps)
-    and is linear in time in between: a product of the slowly varying loads and deflections, it is
-    smooth on the 2 ms scale (the kHz modes carry a negligible part of the deflection)."""
+
+def _remainder_stencil(grid: Grid):
+    """Static sampling and interpolation plan of the second-order remainder.
+
+    The remainder is sampled (right limits) at ``grid.remainder_points`` fine nodes per coarse
+    interval (offsets round(k m / r)) and, as a left limit, at every jump node (``_jump_nodes``;
+    the last is tf). Between consecutive samples of one jump-free segment it is linear in time.
+    Returns the right-limit sample nodes (S,), and for the start and the end of every fine step
+    (N,) the indices of the two bracketing samples in [right samples, left samples] and the weight
+    of the second."""
+    nc, m, r = grid.coarse, grid.fine, max(1, min(grid.remainder_points, grid.fine))
+    offsets = np.unique(np.round(np.arange(r) * m / r).astype(int))
+    right = (np.arange(nc)[:, None] * m + offsets[None, :]).ravel()
+    jumps = _jump_nodes(grid)
+    n = nc * m
+    seg_of_step = np.searchsorted(jumps, np.arange(n), side="right")       # segment of every step
+    plans = []
+    for node in (np.arange(n), np.arange(n) + 1):                          # start / end of step j
+        lo = np.empty(n, int)
+        hi = np.empty(n, int)
+        w = np.empty(n)
+        for k in range(len(jumps)):
+            sel = seg_of_step == k
+            seg_start = 0 if k == 0 else jumps[k - 1]
+            inside = np.flatnonzero((right >= seg_start) & (right < jumps[k]))
+            pos = np.concatenate([right[inside], [jumps[k]]])
+            ids = np.concatenate([inside, [len(right) + k]])
+            p = node[sel]
+            i = np.clip(np.searchsorted(pos, p, side="right") - 1, 0, len(pos) - 2)
+            lo[sel], hi[sel] = ids[i], ids[i + 1]
+            w[sel] = (p - pos[i]) / (pos[i + 1] - pos[i])
+        plans.append((lo, hi, w))
+    return right, plans
+
+
+def _second_pass_forcing(robot, tables, x0, frozen, fast_start, fast_end, samples, grid, f_start, f_end,
+                         tr_start, tr_end):
+    """Forcing and torques of the second pass of ``rollout`` (corrections from a first pass).
+
+    1. Continuous coefficients: the first pass freezes M, C, K over each coarse interval, so they
+       jump at its ends; every jump kicks the undamped kHz modes (an artefact that does not
+       vanish as the interval shrinks and dominates |e''| at one instant). The second pass adds
+       the force -(dM q'' + dC q' + dK q), with dX = X_lin(t) - X_frozen and X_lin linear in time
+       between the coarse boundary values (right limit at the start, left limit at the end of every
+       interval), evaluated along the first-pass solution at every fine node: the effective
+       coefficients are then continuous and accurate to O(H^2).
+    2. With ``robot``, the full model's second-order remainder R(z1) - R(0) - R'(0) z1 along the
+       first-pass solution z1 = [q_e, q_e', q_e''] (``linearized.remainder``) at the nodes of
+       ``_remainder_stencil``, linear in time in between, enters as forcing and torque."""
     nc, m = grid.coarse, grid.fine
+    n = nc * m
     ne = x0.shape[0] // 2
-    x1_tf, (x1, qdd1) = _motion(x0, frozen, f_start, f_end, tr_start, fast_start, samples.start[1],
-                                samples.start[2], grid, states=True)
-    first = np.arange(nc) * m
-    jumps = np.arange(1, 9) * (nc // 8)            # boundaries where the paper laws' s'' may jump
-    before = jumps * m - 1                           # last fine step before each of them
-    x_jump = jnp.concatenate([x1[jumps[:-1]], x1_tf[None]])
-    fz_b = jax.tree_util.tree_map(lambda a: a[jumps - 1], frozen)
-    qdd_jump = jax.vmap(lambda fz, f, x: fz.minv @ (f - fz.c @ x[ne:] - fz.k @ x[:ne]))(fz_b, f_end[before], x_jump)
+    x1_tf, x1 = _motion(x0, frozen, f_start, f_end, tr_start, fast_start, samples.start[1],
+                        samples.start[2], grid, states=True)
+    mv = lambda a, v: jnp.einsum("cij,cmj->cmi", a, v.reshape(nc, m, -1)).reshape(n, -1)  # per-interval a @ v
+    x1_end = jnp.concatenate([x1[1:], x1_tf[None]])                   # state at the end of every step
+    acc = lambda f, x: mv(frozen.minv, f - mv(frozen.c, x[:, ne:]) - mv(frozen.k, x[:, :ne]))
+    qdd1_start = acc(f_start, x1)
+    qdd1_end = acc(f_end, x1_end)                                    # left limits (same interval)
+
+    # ---- 1. coefficients linear in time between the coarse boundaries
+    first, last = np.arange(nc) * m, np.arange(nc) * m + m - 1
+    s_b = jnp.concatenate([samples.start[0][first], samples.end[0][-1:]])
+    cb = _interp(tables, s_b, ("mass", "k0", "k1", "k2", "c0", "c1"))
+    def mkc(c, ds, dds):
+        return c["mass"], c["k0"] + c["k2"] * ds**2 + c["k1"] * dds, c["c0"] + c["c1"] * ds
+    at_b = lambda idx: jax.tree_util.tree_map(lambda a: a[idx], cb)
+    m0, k0, c0 = jax.vmap(mkc)(at_b(np.arange(nc)), samples.start[1][first], samples.start[2][first])
+    m1, k1, c1 = jax.vmap(mkc)(at_b(np.arange(1, nc + 1)), samples.end[1][last], samples.end[2][last])
+    tau = np.arange(m + 1) / m
+
+    def corr(tt, x, qdd):     # dM q'' + dC q' + dK q at the fractions tt (m,) of every interval -> (N, ne)
+        w = jnp.tile(jnp.asarray(tt), nc)[:, None]
+        out = 0.0
+        for a0, a1, af, v in ((m0, m1, frozen.mass, qdd), (k0, k1, frozen.k, x[:, :ne]), (c0, c1, frozen.c, x[:, ne:])):
+            out = out + mv(a0 - af, v) + w * mv(a1 - a0, v)
+        return out
+
+    if grid.continuous:
+        f_start = f_start - corr(tau[:-1], x1, qdd1_start)
+        f_end = f_end - corr(tau[1:], x1_end, qdd1_end)
+    if robot is None:
+        return f_start, f_end, tr_start, tr_end
+
+    # ---- 2. second-order remainder of the full model
+    right, ((lo_s, hi_s, w_s), (lo_e, hi_e, w_e)) = _remainder_stencil(grid)
+    jumps = _jump_nodes(grid)
+    before = jumps - 1                                     # last fine step before each jump node
+    x_left = x1_end[before]
     rem = jax.vmap(lambda qa, q1, q2, ds, dds, x, qdd: remainder(robot, qa, q1, q2, ds, dds, x, qdd))
-    cat = lambda a, b: jnp.concatenate([a[first], b[before]])
+    cat = lambda a, b: jnp.concatenate([a[right], b[before]])
     r_all = rem(cat(fast_start["qa"], fast_end["qa"]), cat(fast_start["qa1"], fast_end["qa1"]),
                 cat(fast_start["qa2"], fast_end["qa2"]), cat(samples.start[1], samples.end[1]),
-                cat(samples.start[2], samples.end[2]), jnp.concatenate([x1, x_jump]),
-                jnp.concatenate([qdd1, qdd_jump]))             # one model evaluation site (compile size)
-    r_right, r_left = r_all[:nc], r_all[nc:]
-    # end of interval c: the right limit at c + 1 where s'' is continuous, the left limit at jumps
-    r_end = jnp.concatenate([r_right[1:], r_left[-1:]]).at[jumps[:-1] - 1].set(r_left[:-1])
-    r_start = r_right
-    frac = np.arange(m + 1) / m
-    lin = (r_start[:, None] + (r_end - r_start)[:, None] * frac[None, :, None])    # (nc, m + 1, 2 + ne)
-    at_start = lin[:, :-1].reshape(nc * m, -1)
-    at_end = lin[:, 1:].reshape(nc * m, -1)
+                cat(samples.start[2], samples.end[2]), jnp.concatenate([x1[right], x_left]),
+                jnp.concatenate([qdd1_start[right], qdd1_end[before]]))   # one model evaluation site
+    lin = lambda lo, hi, w: r_all[lo] * (1.0 - w)[:, None] + r_all[hi] * w[:, None]
+    at_start, at_end = lin(lo_s, hi_s, w_s), lin(lo_e, hi_e, w_e)
     return (f_start - at_start[:, 2:], f_end - at_end[:, 2:], tr_start + at_start[:, :2],
             tr_end + at_end[:, :2])
 
@@ -295,12 +371,14 @@ def _second_order_forcing(robot, x0, frozen, fast_start, fast_end, samples, grid
 def rollout(tables: Tables, samples: MotionSamples, tf, dwell, grid: Grid, robot=None) -> Series:
     """Simulate one trajectory: motion over [0, tf] [s] then a dwell [s] at the place pose.
 
-    With ``robot`` (the robot the tables were built for), the run is second-order accurate in the
-    elastic coordinates: a first pass gives the linearized solution z1 = [q_e, q_e', q_e'']; the full
-    model's remainder R(z1) - R(0) - R'(0) z1 (``linearized.remainder``, at the ends of every coarse
-    interval) then enters a second pass as extra forcing and torque (one defect correction: the
-    error drops from O(q_e^2) to O(q_e^3)). The dwell keeps the linear equations (its remainder is of
-    the order of the static sag times the residual amplitude, below 1e-3 of it).
+    A first pass with coefficients frozen per coarse interval gives z1 = [q_e, q_e', q_e'']; a second
+    pass adds, as forcing, the variation of the coefficients within each interval along z1 (with
+    ``grid.continuous``, the default) and, with ``robot`` (the robot the tables were built for), the
+    full model's remainder R(z1) - R(0) - R'(0) z1 (``linearized.remainder``; extra forcing and
+    torque): one defect correction, so the run is second-order accurate in the elastic coordinates
+    (error O(q_e^3) instead of O(q_e^2)). Without robot and with ``continuous=False`` it is a
+    single pass of the plain linearized model. The dwell keeps the linear equations (its remainder
+    is of the order of the static sag times the residual amplitude, below 1e-3 of it).
     """
     n = grid.steps
     h = tf / n
@@ -319,9 +397,9 @@ def rollout(tables: Tables, samples: MotionSamples, tf, dwell, grid: Grid, robot
     q0 = linalg.solve(rest0["k0"], rest0["f0"])
     x0 = jnp.concatenate([q0, jnp.zeros_like(q0)])
     ne = q0.shape[0]
-    if robot is not None:
-        f_start, f_end, tr_start, tr_end = _second_order_forcing(
-            robot, x0, frozen, fast_start, fast_end, samples, grid, f_start, f_end, tr_start, tr_end)
+    if robot is not None or grid.continuous:
+        f_start, f_end, tr_start, tr_end = _second_pass_forcing(
+            robot, tables, x0, frozen, fast_start, fast_end, samples, grid, f_start, f_end, tr_start, tr_end)
     x_tf, ys = _motion(x0, frozen, f_start, f_end, tr_start, fast_start, samples.start[1],
                        samples.start[2], grid)
     last = jax.tree_util.tree_map(lambda a: a[-1], frozen)

@@ -154,7 +154,8 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES, *, d=0.0
     the rollout program's first call minus one run; ``run_s`` the median of ``repeats`` runs of
     the rollout program after compilation. ``second_order`` (default) adds the full model's
     second-order remainder (``simulate.rollout``): agreement with the full nonlinear model within
-    0.2 % on the residuals, about twice the run time; False gives the plain linearized model.
+    about 0.3 % on every metric; False gives the linearized model (still two passes, the second one
+    making the coefficients continuous; ``grid=Grid(..., continuous=False)`` makes it one pass).
     """
     e = d if e is None else e
     blends, profiles, cases = tuple(blends), tuple(profiles), tuple(Case(*c) for c in cases)
