@@ -18,6 +18,7 @@ from jaxflex.optimize.loop import value_and_grad_fwd
 from jaxflex.path import make_path
 from jaxflex.robot import cycle_preset, robot_preset
 from jaxflex.sweep import PAPER_CASES, default_grid, run_sweep
+from jaxflex.workspace import build_workspace
 
 from .io import provenance, write_json
 
@@ -63,8 +64,9 @@ def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwe
 
     - ``law``: w.r.t. the 6 coefficients of a shaped motion law on the Lamé path (tables fixed);
     - ``design``: w.r.t. the 6 blend parameters (d, e, n of both corners) and the 6 law coefficients,
-      the linearization tables rebuilt from the path inside the differentiated function (what
-      ``jaxflex optimize`` differentiates).
+      the linearization tables rebuilt from the path inside the differentiated function by
+      interpolation of the workspace tables (what ``jaxflex optimize`` differentiates; the
+      workspace build, once per model, is timed apart, compilation included).
     """
     from jaxflex.designs import design
     from jaxflex.optimize.objective import Scales, encode, law_objective, objective, stack_robots
@@ -79,7 +81,12 @@ def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwe
     law = _time_gradient(lambda c: law_objective(c, tables, path.length, tf, dwell, grid, scales, robots=robots),
                          coef, repeats)
     params = encode(cycle, design(0.0245, 0.03, 3.2, coef, e2=0.035, n2=3.4))
-    full = _time_gradient(lambda p: objective(p, robots, cycle, tf, dwell, grid, scales), params, repeats)
+    t0 = time.perf_counter()
+    ws = jax.block_until_ready(build_workspace(robots, cycle))
+    ws_s = time.perf_counter() - t0
+    full = _time_gradient(lambda p: objective(p, robots, cycle, tf, dwell, grid, scales, workspaces=ws), params,
+                          repeats)
+    full["workspace_build_s"] = ws_s
     return {"law": law, "design": full, "steps": grid.steps + grid.dwell_steps}
 
 
@@ -102,7 +109,7 @@ def compute(repeats: int = 5) -> dict:
           flush=True)
     grad = gradient_bench(repeats)
     for key, what in (("law", "6 law coefficients, tables fixed"),
-                      ("design", "6 blend parameters + 6 law coefficients, tables rebuilt")):
+                      ("design", "6 blend parameters + 6 law coefficients, tables rebuilt from the workspace")):
         g = grad[key]
         print(f"  {what}: forward {g['forward_run_s'] * 1e3:.1f} ms, gradient {g['grad_run_s'] * 1e3:.1f} ms "
               f"(x{g['grad_over_forward']:.2f}; forward mode {g['forward_mode_grad_run_s'] * 1e3:.1f} ms); "

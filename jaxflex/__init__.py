@@ -1,2 +1,2 @@
 """jaxflex: differentiable elastodynamics and trajectory design for a flexible five-bar robot."""
-__version__ = "0.1.0"
+__version__ = "0.2.0"

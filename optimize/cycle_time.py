@@ -27,6 +27,7 @@ from jaxflex.path import Cycle, make_path
 from jaxflex.profiles import make_profile, shaped
 from jaxflex.robot import Robot
 from jaxflex.sweep import Case, default_grid, run_sweep
+from jaxflex.workspace import build_workspace
 
 from .baselines import LawEvaluator, model_set
 from .objective import decode, encode
@@ -99,11 +100,13 @@ def cycle_time_study(robot: Robot, cycle: Cycle, payload: float = 6.0, tf_ref: f
     target_perturbed = float(np.max(LawEvaluator(perturbed, make_path(cycle, blend, 0.025), tf_ref, dwell, grid)(
         make_profile(law))["dwell_residual_mm"]))
     params = encode(cycle, start_design(cycle, n_coef))
+    workspaces = build_workspace(models.robots, cycle)           # once for every tf
     opt_res, opt_worst, opt_tau, designs = [], [], [], []
     for tf in tfs:
         scales = reference_scales(ref_eval, make_profile(law), bounds, tf=float(tf), weights=training_weights(train))
         result = train_design(models, cycle, float(tf), dwell, grid, scales, params, steps=steps,
-                              learning_rate=learning_rate, progress=progress, label=f"design tf={tf:g}")
+                              learning_rate=learning_rate, progress=progress, label=f"design tf={tf:g}",
+                              workspaces=workspaces)
         params = result.params
         x = jax.tree_util.tree_map(np.asarray, decode(cycle, params))
         path = design_path(cycle, x, BLEND_FAMILY)

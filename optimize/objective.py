@@ -35,6 +35,7 @@ from jaxflex.path import Cycle
 from jaxflex.profiles import shaped
 from jaxflex.robot import Robot
 from jaxflex.simulate import Grid, motion_samples, rollout
+from jaxflex.workspace import Workspace
 
 N_MIN, N_MAX = 2.0, 8.0
 TORQUE_WEIGHT = 1e5     # penalty weight on (peak torque / bound - 1)^2: 1 % excess costs 10 in J (a
@@ -98,21 +99,25 @@ def combine(terms: dict, scales: Scales, torque_weight: float = TORQUE_WEIGHT):
 
 
 def objective_terms(params: Params, robots: Robot, cycle: Cycle, tf, dwell, grid: Grid, *,
-                    blend: str = "lame", order: int = 3, second_order: bool = True) -> dict:
-    """Per-model terms for a batch of K robots (leaves with a leading axis K, e.g. payloads)."""
+                    blend: str = "lame", order: int = 3, second_order: bool = True,
+                    workspaces: Workspace | None = None) -> dict:
+    """Per-model terms for a batch of K robots (leaves with a leading axis K, e.g. payloads);
+    ``workspaces``: their workspace tables stacked alike (``jaxflex.workspace``), or None to build
+    each path's tables from the model."""
     x = decode(cycle, params)
-    one = lambda robot: _terms(design_rollout(robot, cycle, x, tf, dwell, grid, blend=blend, order=order,
-                                              second_order=second_order))
-    return jax.vmap(one)(robots)
+    one = lambda robot, ws: _terms(design_rollout(robot, cycle, x, tf, dwell, grid, blend=blend, order=order,
+                                                  second_order=second_order, workspace=ws))
+    return jax.vmap(one)(robots, workspaces)
 
 
 def objective(params: Params, robots: Robot, cycle: Cycle, tf, dwell, grid: Grid, scales: Scales, *,
               blend: str = "lame", order: int = 3, torque_weight: float = TORQUE_WEIGHT,
-              second_order: bool = True):
-    """Design objective J (path and law; the tables are rebuilt from the decoded path) and the
-    per-model terms. ``robots``: K models stacked (``stack_robots``)."""
+              second_order: bool = True, workspaces: Workspace | None = None):
+    """Design objective J (path and law; the tables are rebuilt from the decoded path, from the
+    model or from the models' ``workspaces``) and the per-model terms. ``robots``: K models
+    stacked (``stack_robots``)."""
     t = objective_terms(params, robots, cycle, tf, dwell, grid, blend=blend, order=order,
-                        second_order=second_order)
+                        second_order=second_order, workspaces=workspaces)
     return combine(t, scales, torque_weight), t
 
 

@@ -36,6 +36,7 @@ from jaxflex.profiles import Profile, make_profile, shaped
 from jaxflex.robot import Robot
 from jaxflex.simulate import Grid, MotionSamples
 from jaxflex.sweep import Case, default_grid, run_sweep
+from jaxflex.workspace import Workspace, build_workspace
 
 from .baselines import LawEvaluator, ModelSet, model_set, place_first_mode_hz, ruckig_samples, shaper_profiles
 from .loop import OptResult, minimize
@@ -230,9 +231,9 @@ def optimize_design(robot: Robot, cycle: Cycle, payloads: Sequence[float] = (6.0
 def _design_objective(grid: Grid, blend: str = BLEND_FAMILY, order: int = 3, torque_weight: float = TORQUE_WEIGHT):
     """The design objective for one grid, one function object per static configuration (so that
     ``minimize`` compiles once for every tf, payload set and scale of the same shapes)."""
-    def f(params, robots, cycle, tf, dwell, scales):
+    def f(params, robots, cycle, tf, dwell, scales, workspaces):
         return objective(params, robots, cycle, tf, dwell, grid, scales, blend=blend, order=order,
-                         torque_weight=torque_weight)
+                         torque_weight=torque_weight, workspaces=workspaces)
     return f
 
 
@@ -246,11 +247,18 @@ def _law_objective(grid: Grid, order: int = 3, torque_weight: float = TORQUE_WEI
 
 def train_design(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid: Grid, scales: Scales,
                  init: Params, *, steps: int = 100, learning_rate: float = 0.05, checkpoint=None,
-                 progress: bool = True, patience: int = 40, label: str = "design") -> OptResult:
+                 progress: bool = True, patience: int = 40, label: str = "design",
+                 workspaces: Workspace | None = None) -> OptResult:
     """Optimize the design parameters (start ``init``) on ``models`` at motion time tf [s] with the
-    normalization ``scales`` (Adam; learning rate warmed up, then cosine-decayed)."""
+    normalization ``scales`` (Adam; learning rate warmed up, then cosine-decayed). The path tables
+    inside the objective come from the models' workspace tables (``jaxflex.workspace``, built here
+    or passed as ``workspaces``): the gradient compiles in about a third of the time it takes
+    through the model's table build."""
     f = _design_objective(grid)
-    args = (models.robots, cycle, jnp.asarray(tf, dtype=float), jnp.asarray(dwell, dtype=float), scales)
+    if workspaces is None:
+        workspaces = build_workspace(models.robots, cycle)
+    args = (models.robots, cycle, jnp.asarray(tf, dtype=float), jnp.asarray(dwell, dtype=float), scales,
+            workspaces)
     return minimize(f, init, args=args, steps=steps, learning_rate=learning_rate, checkpoint=checkpoint,
                     patience=patience, progress=progress, label=label, decay=True, monitor=_dwell)
 

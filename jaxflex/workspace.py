@@ -1,0 +1,173 @@
+"""Linearization coefficients over the cycle's workspace: cheap, differentiable tables for any path.
+
+Every coefficient of ``linearized.pose_coeffs`` is a polynomial in the path derivatives of the motor
+angles, qa1 = dq_a/ds = (a, b) and qa2 = d2q_a/ds2 = (c, d), whose coefficients depend on the pose
+only (the equations of motion are quadratic in velocities and linear in accelerations):
+
+    C(pose, qa1, qa2) = B_1 + a B_a + b B_b + a^2 B_aa + a b B_ab + b^2 B_bb + c B_c + d B_d,
+
+where the pose-only fields (mass, k0, ...) have B_1 alone, the fields per unit s'' and the gyroscopic
+ones (f1, k1, c1, ...) B_a and B_b, and the fields per unit s'^2 (f2, k2, ..., jx2) the other five.
+``build_workspace`` tabulates these pose functions once per robot on a uniform grid of end-effector
+positions covering the cycle's rectangle (traverse x lift, where every blended path of the cycle
+lies) from eight exact evaluations of ``pose_coeffs`` per grid point. ``workspace_tables`` then
+gives the path tables of ``linearized.build_tables`` for any path of the cycle by local bicubic
+interpolation of the B's at the path's nodes and the exact polynomial in (qa1, qa2): no model
+evaluation, so a gradient with respect to the path (blend parameters) costs little to compile and
+to run. The optimizer differentiates through it; final evaluations use the exact tables.
+Interpolation error: about 1e-7 of each field's range with the default 5 mm grid
+(tests/test_workspace.py).
+"""
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxflex.linearized import Coeffs, Tables, _segment_nodes, pose_coeffs
+from jaxflex.path import Cycle, Path, path_frame
+from jaxflex.robot import Robot, check_reachable, igm, joint_motion
+
+ORDER0 = ("mass", "m_ae", "f0", "k0", "c0", "t0", "tq0", "tv0", "jx")       # pose only
+ORDER1 = ("f1", "k1", "c1", "t1", "tq1", "tv1", "jx1")                     # linear in qa1
+ORDER2 = ("f2", "k2", "t2", "tq2", "jx2")                                  # quadratic in qa1, linear in qa2
+MONOMIALS = {0: (0,), 1: (1, 2), 2: (3, 4, 5, 6, 7)}   # indices into [1, a, b, a^2, ab, b^2, c, d]
+# the (qa1, qa2) at which pose_coeffs is evaluated: 0, +-e1, +-e2, e1 + e2 (qa1); e1, e2 (qa2)
+_PROBES = np.array([[0, 0, 0, 0], [1, 0, 0, 0], [-1, 0, 0, 0], [0, 1, 0, 0], [0, -1, 0, 0], [1, 1, 0, 0],
+                    [0, 0, 1, 0], [0, 0, 0, 1]], dtype=float)
+
+
+def _order(field: str) -> int:
+    return 0 if field in ORDER0 else 1 if field in ORDER1 else 2
+
+
+class Workspace(NamedTuple):
+    """Pose functions B of the coefficient polynomial on a grid of end-effector positions.
+
+    ``values``: field -> (nu, nv, k, ...) array, k the field's monomials (``MONOMIALS``); the grid
+    point (i, j) is at origin + axes @ (i step_u, j step_v) [m]; ``axes`` (2, 2) has the traverse and
+    lift directions as columns; ``step`` (2,) [m]. A pytree of arrays: vmap over robots stacks it."""
+
+    values: dict
+    origin: jax.Array
+    axes: jax.Array
+    step: jax.Array
+
+
+def grid_shape(cycle: Cycle, spacing: float = 0.005) -> tuple[int, int]:
+    """Grid points (along the traverse, along the lift) for a target spacing [m] (at least 4 each)."""
+    l, h = float(cycle.l), float(cycle.h)
+    return max(4, math.ceil(l / spacing) + 1), max(4, math.ceil(h / spacing) + 1)
+
+
+def _basis_at(robot: Robot, qa):
+    """The eight monomial coefficients B (field -> (k, ...)) at motor angles qa (2,)."""
+    probes = jnp.asarray(_PROBES)
+    ev = jax.vmap(lambda p: pose_coeffs(robot, qa, p[:2], p[2:]))(probes)._asdict()
+    out = {}
+    for name in ORDER0 + ORDER1 + ORDER2:
+        e = ev[name]
+        b1 = e[0]
+        ba, bb = 0.5 * (e[1] - e[2]), 0.5 * (e[3] - e[4])
+        baa, bbb = 0.5 * (e[1] + e[2]) - b1, 0.5 * (e[3] + e[4]) - b1
+        bab = e[5] - b1 - ba - bb - baa - bbb
+        allb = jnp.stack([b1, ba, bb, baa, bab, bbb, e[6] - b1, e[7] - b1])
+        out[name] = allb[np.asarray(MONOMIALS[_order(name)])]
+    return out
+
+
+def _basis_full(robot: Robot, qa):
+    """All eight monomial coefficients of every field (for tests of the polynomial structure)."""
+    probes = jnp.asarray(_PROBES)
+    ev = jax.vmap(lambda p: pose_coeffs(robot, qa, p[:2], p[2:]))(probes)._asdict()
+    return {k: v for k, v in ev.items() if k in ORDER0 + ORDER1 + ORDER2}
+
+
+def grid_points(cycle: Cycle, shape: tuple[int, int]):
+    """World positions (nu, nv, 2) [m] of the grid points over the cycle's rectangle."""
+    nu, nv = shape
+    u = jnp.linspace(0.0, 1.0, nu) * cycle.l
+    v = jnp.linspace(0.0, 1.0, nv) * cycle.h
+    local = jnp.stack(jnp.meshgrid(u, v, indexing="ij"), axis=-1)          # (nu, nv, 2)
+    return cycle.pick[None, None, :] + local @ cycle.basis.T
+
+
+def _build(robot: Robot, cycle: Cycle, shape):
+    pts = grid_points(cycle, shape)
+    qa = jax.vmap(lambda x: igm(robot, x))(pts.reshape(-1, 2))
+    vals = jax.vmap(lambda q: _basis_at(robot, q))(qa)
+    nu, nv = shape
+    values = {k: v.reshape((nu, nv) + v.shape[1:]) for k, v in vals.items()}
+    step = jnp.stack([cycle.l / (nu - 1), cycle.h / (nv - 1)])
+    return Workspace(values=values, origin=jnp.asarray(cycle.pick, dtype=float), axes=cycle.basis, step=step)
+
+
+_build_jit = jax.jit(_build, static_argnames=("shape",))
+_build_many = jax.jit(jax.vmap(_build, in_axes=(0, None, None)), static_argnames=("shape",))
+
+
+def build_workspace(robot: Robot, cycle: Cycle, spacing: float = 0.005) -> Workspace:
+    """Tabulate the pose functions over the cycle's rectangle with about ``spacing`` [m] between grid
+    points. ``robot`` may be a stack of robots (``optimize.objective.stack_robots``: leaves with a
+    leading axis K), which gives a Workspace with that leading axis. Raises ValueError when a grid
+    point is unreachable or singular (before any compilation)."""
+    shape = grid_shape(cycle, spacing)
+    stacked = np.ndim(robot.payload) > 0
+    first = jax.tree_util.tree_map(lambda a: a[0], robot) if stacked else robot
+    check_reachable(first, np.asarray(grid_points(cycle, shape)).reshape(-1, 2), "workspace grid point")
+    return (_build_many if stacked else _build_jit)(robot, cycle, shape)
+
+
+def _weights(t):
+    """Cubic Lagrange weights (4,) at t in [0, 3] for nodes 0..3."""
+    return jnp.stack([-(t - 1) * (t - 2) * (t - 3) / 6, t * (t - 2) * (t - 3) / 2,
+                      -t * (t - 1) * (t - 3) / 2, t * (t - 1) * (t - 2) / 6])
+
+
+def interpolate_basis(ws: Workspace, x) -> dict:
+    """Pose functions at the end-effector position x (2,) [m] by local bicubic interpolation."""
+    local = ws.axes.T @ (x - ws.origin) / ws.step
+    some = next(iter(ws.values.values()))
+    n = np.array(some.shape[:2])
+    idx, wts = [], []
+    for k in range(2):
+        i0 = jnp.clip(jnp.floor(local[k]).astype(int) - 1, 0, int(n[k]) - 4)
+        idx.append(i0 + jnp.arange(4))
+        wts.append(_weights(local[k] - i0.astype(float)))
+    w2 = wts[0][:, None] * wts[1][None, :]                                   # (4, 4)
+    return {k: jnp.tensordot(w2, v[idx[0][:, None], idx[1][None, :]], axes=2) for k, v in ws.values.items()}
+
+
+def _monomials(qa1, qa2):
+    a, b = qa1[0], qa1[1]
+    return jnp.stack([jnp.ones_like(a), a, b, a * a, a * b, b * b, qa2[0], qa2[1]])
+
+
+def coeffs_from_basis(basis: dict, qa, qa1, qa2) -> Coeffs:
+    """``pose_coeffs`` from the pose functions at the pose qa (2,) and the path derivatives qa1, qa2."""
+    mono = _monomials(qa1, qa2)
+    fields = {k: jnp.tensordot(mono[np.asarray(MONOMIALS[_order(k)])], v, axes=1) for k, v in basis.items()}
+    return Coeffs(**fields, qa=qa, qa1=qa1, qa2=qa2)
+
+
+def path_nodes(robot: Robot, path: Path):
+    """Table nodes of a path (``linearized.SEGMENT_NODES``): end-effector positions (K, 2) [m] and the
+    motor angles with their arc-length derivatives, (K, 2) each."""
+    s = _segment_nodes(path.breaks)
+
+    def one(si):
+        f = path_frame(path, si)
+        return (f.pos,) + joint_motion(robot, f.pos, f.tangent, f.curv)
+
+    return jax.vmap(one)(s)
+
+
+def workspace_tables(ws: Workspace, robot: Robot, path: Path) -> Tables:
+    """The path's linearization tables (as ``linearized.build_tables``) from the workspace tables of
+    the same robot and cycle; differentiable in the path parameters."""
+    x, qa, qa1, qa2 = path_nodes(robot, path)
+    values = jax.vmap(lambda xi, a, b, c: coeffs_from_basis(interpolate_basis(ws, xi), a, b, c))(x, qa, qa1, qa2)
+    return Tables(values=values, breaks=path.breaks)

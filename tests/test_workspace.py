@@ -1,0 +1,86 @@
+"""Workspace tables: the coefficient polynomial in the path derivatives, interpolation accuracy and
+derivatives with respect to the blend parameters (what the design optimizer differentiates)."""
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxflex.linearized import build_tables, pose_coeffs
+from jaxflex.path import make_path
+from jaxflex.robot import cycle_preset, igm, robot_preset
+from jaxflex.workspace import (MONOMIALS, ORDER0, ORDER1, ORDER2, _basis_at, _basis_full, _order,
+                               build_workspace, coeffs_from_basis, workspace_tables)
+
+
+@pytest.fixture(scope="module")
+def setup():
+    robot, cycle = robot_preset("default", payload=6.0), cycle_preset()
+    return robot, cycle, build_workspace(robot, cycle)
+
+
+def test_coefficients_are_exact_polynomials_in_the_path_derivatives():
+    """Every field's monomials outside its class (``MONOMIALS``) vanish, and the polynomial rebuilt
+    from the eight probes equals ``pose_coeffs`` at arbitrary (qa1, qa2) to round-off (the model is
+    quadratic in velocities and linear in accelerations, so the claim is exact). Tolerance 1e-7 of
+    each field's range: pose_coeffs forms the s'' and s'^2 fields as differences of Jacobians that
+    hold the ~1e9 N/m axial stiffness, so their round-off is ~1e-7 N/m absolute (measured 2.4e-7 on k1,
+    whose entries reach 21)."""
+    robot = robot_preset("default", payload=6.0)
+    qa = igm(robot, jnp.asarray([0.05, 0.27]))
+    full = jax.jit(_basis_full)(robot, qa)
+    e = {k: np.asarray(v) for k, v in full.items()}
+    b = {k: np.stack([e[k][0], 0.5 * (e[k][1] - e[k][2]), 0.5 * (e[k][3] - e[k][4]),
+                      0.5 * (e[k][1] + e[k][2]) - e[k][0], np.zeros_like(e[k][0]), 0.5 * (e[k][3] + e[k][4]) - e[k][0],
+                      e[k][6] - e[k][0], e[k][7] - e[k][0]]) for k in e}
+    for k in b:
+        b[k][4] = e[k][5] - b[k][0] - b[k][1] - b[k][2] - b[k][3] - b[k][5]
+        scale = np.max(np.abs(b[k])) + 1e-300
+        dropped = np.delete(b[k], MONOMIALS[_order(k)], axis=0)
+        assert np.max(np.abs(dropped)) <= 1e-7 * scale, k
+    assert set(ORDER0 + ORDER1 + ORDER2) == set(e)
+    basis = jax.jit(_basis_at)(robot, qa)
+    rng = np.random.default_rng(0)
+    for _ in range(3):
+        qa1, qa2 = jnp.asarray(rng.normal(0, 4, 2)), jnp.asarray(rng.normal(0, 300, 2))   # rad/m, rad/m^2
+        ours = coeffs_from_basis(basis, qa, qa1, qa2)._asdict()
+        ref = jax.jit(pose_coeffs)(robot, qa, qa1, qa2)._asdict()
+        for k in ref:
+            np.testing.assert_allclose(ours[k], ref[k], rtol=0, atol=1e-7 * (np.max(np.abs(ref[k])) + 1e-300),
+                                       err_msg=k)
+
+
+def _tables(cycle, d, e, fn):
+    return fn(make_path(cycle, "lame", d, e, 3.5, 0.02, 0.04, 2.5)).values._asdict()
+
+
+def test_workspace_tables_and_their_blend_derivatives_match_the_exact_tables(setup):
+    """An asymmetric Lamé design (corners d, e, n = 15/60/3.5 and 20/40/2.5 mm): every field within
+    1e-5 of its range (bicubic interpolation on the 5 mm grid: measured 5e-7); the derivatives w.r.t.
+    the first corner's d and e (forward mode through the interpolation) against central differences
+    of the exact tables (h = 1e-6 m: truncation ~1e-12) within 2e-3 of each derivative's largest
+    value (the interpolant's derivative error is O(grid^3): measured 6e-4, on k0, whose derivative
+    is small because K0 hardly depends on the pose)."""
+    robot, cycle, ws = setup
+    exact = jax.jit(lambda d, e: _tables(cycle, d, e, lambda p: build_tables(robot, p)))
+    interp = lambda d, e: _tables(cycle, d, e, lambda p: workspace_tables(ws, robot, p))
+    d0, e0 = 0.015, 0.06
+    ex, ap = exact(d0, e0), jax.jit(interp)(d0, e0)
+    for k in ex:
+        assert float(jnp.max(jnp.abs(ap[k] - ex[k]))) <= 1e-5 * float(jnp.max(jnp.abs(ex[k]))) + 1e-300, k
+    h = 1e-6
+    for t in ((1.0, 0.0), (0.0, 1.0)):
+        plus, minus = exact(d0 + h * t[0], e0 + h * t[1]), exact(d0 - h * t[0], e0 - h * t[1])
+        _, jv = jax.jit(lambda: jax.jvp(interp, (d0, e0), t))()
+        for k in ex:
+            fd = (plus[k] - minus[k]) / (2 * h)
+            scale = float(jnp.max(jnp.abs(fd)))
+            if scale > 0:
+                assert float(jnp.max(jnp.abs(jv[k] - fd))) <= 2e-3 * scale, (t, k)
+
+
+def test_workspace_rejects_a_cycle_outside_the_reach():
+    robot = robot_preset("default")
+    from jaxflex.path import make_cycle
+    far = make_cycle((-0.3, 0.55), (0.3, 0.55))
+    with pytest.raises(ValueError, match="workspace grid point"):
+        build_workspace(robot, far)
