@@ -90,7 +90,8 @@ def summary(study) -> dict:
 def milestones(study, factors=(5.0, 10.0)) -> dict:
     """When the optimizer first held a design with at most 1/factor of the best paper combination's
     dwell residual on every nominal training model (the history's monitor): {factor: {"step",
-    "wall_s" (since the loop started, compilation of the first step included), "first_step_s"}}, or
+    "wall_s" (since the loop started, compilation of the first step included), "first_step_s",
+    "study_s" (since the study started: baselines, training tables and workspaces included)}}, or
     None for a factor never reached."""
     hist, times = study.result.history, list(study.result.times)
     best = next(k for k in study.evaluations["nominal"] if k.endswith("(best paper)"))
@@ -101,7 +102,8 @@ def milestones(study, factors=(5.0, 10.0)) -> dict:
         hit = next((k for k, row in enumerate(hist)
                     if len(row) > 2 and all(row[2 + i] * factor <= r for i, r in zip(idx, ref))), None)
         out[f"{factor:g}x"] = None if hit is None or hit >= len(times) else {
-            "step": int(hist[hit][0]), "wall_s": float(times[hit]), "first_step_s": float(times[0])}
+            "step": int(hist[hit][0]), "wall_s": float(times[hit]), "first_step_s": float(times[0]),
+            "study_s": float(study.setup_s + times[hit])}
     return out
 
 
@@ -138,7 +140,8 @@ def _milestone_text(rec: dict) -> str:
     for factor, m in rec.get("milestones", {}).items():
         parts.append(f"{factor}: not reached" if m is None else
                      f"{factor} at step {m['step']}, {m['wall_s']:.0f} s ({m['wall_s'] - m['first_step_s']:.0f} s "
-                     "after the first step)")
+                     "after the first step"
+                     + (f"; {m['study_s']:.0f} s after the study started" if "study_s" in m else "") + ")")
     return ("\nbest paper combination's nominal dwell residual divided by " + "; ".join(parts)) if parts else ""
 
 

@@ -96,6 +96,7 @@ class DesignStudy(NamedTuple):
     grid: Grid
     wall_s: float
     evaluators: dict            # set -> path name -> LawEvaluator
+    setup_s: float = 0.0        # wall time [s] from the study's start to the optimizer's start
 
     def series(self, name: str):
         """Simulation ``Series`` of a candidate on the nominal models (leading axis: payloads)."""
@@ -189,10 +190,13 @@ def optimize_design(robot: Robot, cycle: Cycle, payloads: Sequence[float] = (6.0
     bounds = torque_bounds(models, cycle, tf, dwell, grid, train_paper)
     scales = reference_scales(train_paper, make_profile(law), bounds, weights=training_weights(train, len(payloads)))
     label = f"{'design' if free_path else 'law'} tf={tf:g}"
+    workspaces = build_workspace(models.robots, cycle) if free_path else None
+    setup_s = time.time() - started
     if free_path:
         x0 = init if init is not None else start_design(cycle, n_coef)
         result = train_design(models, cycle, tf, dwell, grid, scales, encode(cycle, x0), steps=steps,
-                              learning_rate=learning_rate, checkpoint=checkpoint, progress=progress, label=label)
+                              learning_rate=learning_rate, checkpoint=checkpoint, progress=progress, label=label,
+                              workspaces=workspaces)
         x = jax.tree_util.tree_map(np.asarray, decode(cycle, result.params))
         paths["optimized"] = design_path(cycle, x, BLEND_FAMILY)
         coef = np.asarray(x.coef)
@@ -224,7 +228,7 @@ def optimize_design(robot: Robot, cycle: Cycle, payloads: Sequence[float] = (6.0
     paper = {k: np.asarray(v) for k, v in res.metrics.items()}
     return DesignStudy(payloads, tf, blend, law, x, coef, result, train, models.labels, candidates, paths, evaluations,
                        {k: s.labels for k, s in sets.items()}, paper, torque_bound, limits, freqs, grid,
-                       time.time() - started, evaluators)
+                       time.time() - started, evaluators, setup_s)
 
 
 @functools.lru_cache(maxsize=None)
