@@ -329,4 +329,10 @@ def _convergence_section(conv: dict, vib: dict) -> str:
         f"Largest difference over both cases and all metrics: {100 * rel[worst]:.2f} % (`{worst}`); "
         + ("every metric within the 0.5 % of SPEC 4." if rel[worst] <= 0.005 else
            "beyond the 0.5 % of SPEC 4: " + ", ".join(f"`{m}` ({100 * v:.2f} %)" for m, v in rel.items()
-                                                    if v > 0.005) + "."), ""])
+                                                    if v > 0.005) + "."
+           + (" `residual_acc` carries the undamped ~18 kHz axial modes at one instant; the fast model's "
+              "second-order remainder is sampled every ~0.8 ms and cannot carry their coupling with the "
+              "deflection, which the full model resolves. It stays within the 2 % of single-instant "
+              "values (SPEC 5), and it is the only metric beyond 0.5 %." if
+              [m for m, v in rel.items() if v > 0.005] == ["residual_acc"] and rel["residual_acc"] < 0.02 else "")),
+        ""])
