@@ -204,9 +204,13 @@ def _propagator(m, k, c, h, squarings):
     return t_mat @ phi_y @ t_inv, t_mat @ g0_y @ li, t_mat @ g1_y @ li
 
 
+def _stiffness_damping(c: dict, ds, dds):
+    """K and C (ne, ne) at path speed ds [m/s] and acceleration dds [m/s^2]."""
+    return c["k0"] + c["k2"] * ds**2 + c["k1"] * dds, c["c0"] + c["c1"] * ds
+
+
 def _frozen(c: dict, ds, dds, h, squarings) -> _Frozen:
-    k = c["k0"] + c["k2"] * ds**2 + c["k1"] * dds
-    cc = c["c0"] + c["c1"] * ds
+    k, cc = _stiffness_damping(c, ds, dds)
     tq = c["tq0"] + c["tq2"] * ds**2 + c["tq1"] * dds
     tv = c["tv0"] + c["tv1"] * ds
     phi, g0, g1 = _propagator(c["mass"], k, cc, h, squarings)
@@ -332,7 +336,7 @@ def _second_pass_forcing(robot, tables, x0, frozen, fast_start, fast_end, sample
     s_b = jnp.concatenate([samples.start[0][first], samples.end[0][-1:]])
     cb = _interp(tables, s_b, ("mass", "k0", "k1", "k2", "c0", "c1"))
     def mkc(c, ds, dds):
-        return c["mass"], c["k0"] + c["k2"] * ds**2 + c["k1"] * dds, c["c0"] + c["c1"] * ds
+        return (c["mass"],) + _stiffness_damping(c, ds, dds)
     at_b = lambda idx: jax.tree_util.tree_map(lambda a: a[idx], cb)
     m0, k0, c0 = jax.vmap(mkc)(at_b(np.arange(nc)), samples.start[1][first], samples.start[2][first])
     m1, k1, c1 = jax.vmap(mkc)(at_b(np.arange(1, nc + 1)), samples.end[1][last], samples.end[2][last])

@@ -64,9 +64,8 @@ def grid_shape(cycle: Cycle, spacing: float = 0.005) -> tuple[int, int]:
 
 
 def _basis_at(robot: Robot, qa):
-    """The eight monomial coefficients B (field -> (k, ...)) at motor angles qa (2,)."""
-    probes = jnp.asarray(_PROBES)
-    ev = jax.vmap(lambda p: pose_coeffs(robot, qa, p[:2], p[2:]))(probes)._asdict()
+    """The monomial coefficients B of every field (field -> (k, ...)) at motor angles qa (2,)."""
+    ev = _basis_full(robot, qa)
     out = {}
     for name in ORDER0 + ORDER1 + ORDER2:
         e = ev[name]
@@ -80,7 +79,8 @@ def _basis_at(robot: Robot, qa):
 
 
 def _basis_full(robot: Robot, qa):
-    """All eight monomial coefficients of every field (for tests of the polynomial structure)."""
+    """``pose_coeffs`` at the eight probes ``_PROBES`` (field -> (8, ...)), from which ``_basis_at``
+    forms the monomial coefficients (tests check the polynomial structure on it)."""
     probes = jnp.asarray(_PROBES)
     ev = jax.vmap(lambda p: pose_coeffs(robot, qa, p[:2], p[2:]))(probes)._asdict()
     return {k: v for k, v in ev.items() if k in ORDER0 + ORDER1 + ORDER2}
