@@ -13,7 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxflex.linearized import build_tables
+from jaxflex.linearized import path_tables
 from jaxflex.optimize.loop import value_and_grad_fwd
 from jaxflex.path import make_path
 from jaxflex.robot import cycle_preset, robot_preset
@@ -75,7 +75,7 @@ def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwe
     path = make_path(cycle, "lame", 0.025)
     grid = default_grid(robot, [tf], dwell)
     robots = stack_robots([robot])
-    tables = jax.tree_util.tree_map(lambda a: a[None], jax.jit(build_tables)(robot, path))
+    tables = path_tables(robots, path)
     scales = Scales(jnp.full(1, 1e-3), jnp.full(1, 1e-10), jnp.full(1, 90.0))
     coef = jnp.asarray([1.0, 1.2, 0.9, 1.0, 1.1, 0.95])
     law = _time_gradient(lambda c: law_objective(c, tables, path.length, tf, dwell, grid, scales, robots=robots),

@@ -162,8 +162,61 @@ def coeffs_at(robot: Robot, qa, qa1, qa2) -> Coeffs:
 
 
 def build_tables(robot: Robot, path: Path) -> Tables:
-    """Tabulate the linearization coefficients along the path (vmapped over the nodes)."""
+    """Tabulate the linearization coefficients along the path (vmapped over the nodes); traceable
+    (differentiable in the path parameters). Outside a traced function prefer ``path_tables``."""
     return Tables(values=coeffs_at(robot, *table_poses(robot, path)), breaks=path.breaks)
+
+
+COEFF_CHUNK = 512        # poses per call of the shared coefficient program
+
+
+@jax.jit
+def _coeffs_chunk(robot: Robot, qa, qa1, qa2) -> Coeffs:
+    return coeffs_at(robot, qa, qa1, qa2)
+
+
+def _robot_list(robot: Robot) -> list[Robot]:
+    """A robot, or a stack of robots (leaves with a leading axis), as a list of single robots."""
+    if np.ndim(robot.payload) == 0:
+        return [robot]
+    return [jax.tree_util.tree_map(lambda a: a[k], robot) for k in range(np.shape(robot.payload)[0])]
+
+
+def coeffs_many(robot: Robot, qa, qa1, qa2) -> Coeffs:
+    """``coeffs_at`` for any number N of poses (qa, qa1, qa2: (N, 2) each) through one compiled
+    program of fixed shape (``COEFF_CHUNK`` poses per call) that every table builder shares: the
+    sweep tables, the model-set tables and the workspace tables compile ``pose_coeffs`` once per
+    process (it is the costly compilation: ~20 s on a 2-core CPU). ``robot`` may be a stack of K
+    robots; then the poses are (K, N, 2) or shared (N, 2), and every leaf gets a leading K axis.
+    Not traceable (call it on concrete arrays)."""
+    robots = _robot_list(robot)
+    stacked = np.ndim(robot.payload) > 0
+    poses = [np.asarray(a, dtype=float) for a in (qa, qa1, qa2)]
+    out = []
+    for k, r in enumerate(robots):
+        qs = [p[k] if p.ndim == 3 else p for p in poses]
+        n = qs[0].shape[0]
+        pad = -n % COEFF_CHUNK
+        qs = [np.concatenate([q, np.repeat(q[:1], pad, axis=0)]) for q in qs]    # valid filler poses
+        r = jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype=float), r)
+        parts = [_coeffs_chunk(r, *(q[i:i + COEFF_CHUNK] for q in qs)) for i in range(0, n + pad, COEFF_CHUNK)]
+        out.append(jax.tree_util.tree_map(lambda *a: jnp.concatenate(a)[:n], *parts))
+    return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *out) if stacked else out[0]
+
+
+_table_poses = jax.jit(table_poses)
+_table_poses_many = jax.jit(jax.vmap(table_poses, (0, None)))
+
+
+def path_tables(robot: Robot, path: Path) -> Tables:
+    """``build_tables`` on concrete arrays through the shared coefficient program (``coeffs_many``):
+    no new compilation of the model per caller. ``robot`` may be a stack of K robots (tables with a
+    leading K axis)."""
+    if np.ndim(robot.payload) == 0:
+        return Tables(values=coeffs_many(robot, *_table_poses(robot, path)), breaks=path.breaks)
+    k = np.shape(robot.payload)[0]
+    return Tables(values=coeffs_many(robot, *_table_poses_many(robot, path)),
+                  breaks=jnp.broadcast_to(path.breaks, (k,) + path.breaks.shape))
 
 
 def interpolate(tables: Tables, s) -> Coeffs:

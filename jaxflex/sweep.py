@@ -17,7 +17,7 @@ import numpy as np
 
 from jaxflex.blends import BLENDS
 from jaxflex.expm import squarings_for
-from jaxflex.linearized import Tables, coeffs_at, table_poses
+from jaxflex.linearized import Tables, coeffs_many, table_poses
 from jaxflex.metrics import METRICS, metrics
 from jaxflex.path import check_path_args, make_path
 from jaxflex.profiles import PROFILES, make_profile
@@ -64,11 +64,14 @@ def _poses(robot, cycle, d, e, n, blend):
     return table_poses(robot, path), path.length, path.breaks
 
 
-@jax.jit
 def _coeffs(robot, payloads, qa, qa1, qa2):
-    """Coefficients for every payload (C,) and blend: poses (B, K, 2) -> leaves (C, B, K, ...)."""
-    per_blend = jax.vmap(coeffs_at, in_axes=(None, 0, 0, 0))
-    return jax.vmap(lambda m: per_blend(robot.replace(payload=m), qa, qa1, qa2))(payloads)
+    """Coefficients for every payload (C,) and blend: poses (B, K, 2) -> leaves (C, B, K, ...),
+    through the coefficient program every table builder shares (``linearized.coeffs_many``)."""
+    shape = qa.shape[:2]
+    flat = [jnp.reshape(a, (-1, 2)) for a in (qa, qa1, qa2)]
+    robots = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *[robot.replace(payload=m) for m in payloads])
+    values = coeffs_many(robots, *flat)
+    return jax.tree_util.tree_map(lambda v: v.reshape(v.shape[:1] + shape + v.shape[2:]), values)
 
 
 def _rollouts(values, breaks, lengths, tfs, dwell, robots, profiles, grid, with_series):

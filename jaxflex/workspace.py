@@ -27,7 +27,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxflex.linearized import Coeffs, Tables, _segment_nodes, pose_coeffs
+from jaxflex.linearized import Coeffs, Tables, _robot_list, _segment_nodes, coeffs_many, pose_coeffs
 from jaxflex.path import Cycle, Path, path_frame
 from jaxflex.robot import Robot, check_reachable, igm, joint_motion
 
@@ -63,9 +63,9 @@ def grid_shape(cycle: Cycle, spacing: float = 0.005) -> tuple[int, int]:
     return max(4, math.ceil(l / spacing) + 1), max(4, math.ceil(h / spacing) + 1)
 
 
-def _basis_at(robot: Robot, qa):
-    """The monomial coefficients B of every field (field -> (k, ...)) at motor angles qa (2,)."""
-    ev = _basis_full(robot, qa)
+def _combine(ev: dict) -> dict:
+    """The monomial coefficients B of every field (field -> (k, ...)) from ``pose_coeffs`` at the
+    eight probes ``_PROBES`` (field -> (8, ...))."""
     out = {}
     for name in ORDER0 + ORDER1 + ORDER2:
         e = ev[name]
@@ -76,6 +76,11 @@ def _basis_at(robot: Robot, qa):
         allb = jnp.stack([b1, ba, bb, baa, bab, bbb, e[6] - b1, e[7] - b1])
         out[name] = allb[np.asarray(MONOMIALS[_order(name)])]
     return out
+
+
+def _basis_at(robot: Robot, qa):
+    """The monomial coefficients B of every field (field -> (k, ...)) at motor angles qa (2,)."""
+    return _combine(_basis_full(robot, qa))
 
 
 def _basis_full(robot: Robot, qa):
@@ -95,30 +100,41 @@ def grid_points(cycle: Cycle, shape: tuple[int, int]):
     return cycle.pick[None, None, :] + local @ cycle.basis.T
 
 
-def _build(robot: Robot, cycle: Cycle, shape):
-    pts = grid_points(cycle, shape)
-    qa = jax.vmap(lambda x: igm(robot, x))(pts.reshape(-1, 2))
-    vals = jax.vmap(lambda q: _basis_at(robot, q))(qa)
-    nu, nv = shape
-    values = {k: v.reshape((nu, nv) + v.shape[1:]) for k, v in vals.items()}
-    step = jnp.stack([cycle.l / (nu - 1), cycle.h / (nv - 1)])
-    return Workspace(values=values, origin=jnp.asarray(cycle.pick, dtype=float), axes=cycle.basis, step=step)
+@jax.jit
+def _grid_angles(robot: Robot, points):
+    return jax.vmap(lambda x: igm(robot, x))(points)
 
 
-_build_jit = jax.jit(_build, static_argnames=("shape",))
-_build_many = jax.jit(jax.vmap(_build, in_axes=(0, None, None)), static_argnames=("shape",))
+_combine_all = jax.jit(jax.vmap(_combine))
 
 
 def build_workspace(robot: Robot, cycle: Cycle, spacing: float = 0.005) -> Workspace:
     """Tabulate the pose functions over the cycle's rectangle with about ``spacing`` [m] between grid
     points. ``robot`` may be a stack of robots (``optimize.objective.stack_robots``: leaves with a
     leading axis K), which gives a Workspace with that leading axis. Raises ValueError when a grid
-    point is unreachable or singular (before any compilation)."""
+    point is unreachable or singular (before any compilation). The model is evaluated through the
+    coefficient program every table builder shares (``linearized.coeffs_many``)."""
     shape = grid_shape(cycle, spacing)
+    nu, nv = shape
     stacked = np.ndim(robot.payload) > 0
-    first = jax.tree_util.tree_map(lambda a: a[0], robot) if stacked else robot
-    check_reachable(first, np.asarray(grid_points(cycle, shape)).reshape(-1, 2), "workspace grid point")
-    return (_build_many if stacked else _build_jit)(robot, cycle, shape)
+    robots = _robot_list(robot)
+    pts = np.asarray(grid_points(cycle, shape)).reshape(-1, 2)
+    check_reachable(robots[0], pts, "workspace grid point")
+    qa = np.stack([np.asarray(_grid_angles(r, jnp.asarray(pts))) for r in robots])      # (K, N, 2)
+    n, p = pts.shape[0], len(_PROBES)
+    probes = np.tile(_PROBES, (n, 1))                                                   # (N * 8, 4)
+    ev = coeffs_many(robot if stacked else robots[0], np.repeat(qa, p, axis=1) if stacked else np.repeat(qa[0], p, axis=0),
+                     probes[:, :2], probes[:, 2:])._asdict()
+    lead = (len(robots),) if stacked else ()
+    ev = {k: v.reshape((-1, p) + v.shape[len(lead) + 1:]) for k, v in ev.items() if k in ORDER0 + ORDER1 + ORDER2}
+    values = {k: v.reshape(lead + (nu, nv) + v.shape[1:]) for k, v in _combine_all(ev).items()}
+    step = jnp.stack([cycle.l / (nu - 1), cycle.h / (nv - 1)])
+    ws = Workspace(values=values, origin=jnp.asarray(cycle.pick, dtype=float), axes=jnp.asarray(cycle.basis), step=step)
+    if not stacked:
+        return ws
+    k = len(robots)
+    return ws._replace(origin=jnp.broadcast_to(ws.origin, (k, 2)), axes=jnp.broadcast_to(ws.axes, (k, 2, 2)),
+                       step=jnp.broadcast_to(ws.step, (k, 2)))
 
 
 def _weights(t):

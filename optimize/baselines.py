@@ -19,7 +19,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxflex import model as mdl
-from jaxflex.linearized import build_tables
+from jaxflex.linearized import path_tables
 from jaxflex.metrics import metrics
 from jaxflex.path import Cycle, Path
 from jaxflex.profiles import Profile, zv, zvd
@@ -125,9 +125,6 @@ def _law_series(tables, robots, samples, tf, dwell, grid):
     return jax.vmap(lambda tab, r: rollout(tab, samples, tf, dwell, grid, r))(tables, robots)
 
 
-_model_tables = jax.jit(jax.vmap(build_tables, (0, None)))    # one compilation per model-set size
-
-
 class LawEvaluator:
     """Metrics of any motion law along one path on a set of models (second-order fast model).
 
@@ -136,7 +133,7 @@ class LawEvaluator:
 
     def __init__(self, models: ModelSet, path: Path, tf: float, dwell: float, grid: Grid):
         self.models, self.path, self.tf, self.dwell, self.grid = models, path, tf, dwell, grid
-        self.tables = _model_tables(models.robots, path)
+        self.tables = path_tables(models.robots, path)
 
     def with_grid(self, grid: Grid) -> "LawEvaluator":
         """The same path and models on another grid, sharing the tables (they do not depend on it)."""
