@@ -238,13 +238,6 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, steps=100, n_coef=6, tra
            "provenance": provenance({"preset": preset, "payloads": list(payloads), "tf": tf, "steps": steps,
                                      "n_coef": n_coef, "train": train, "free_path": free_path,
                                      "learning_rate": learning_rate}, started)}
-    if verify:
-        from jaxflex.profiles import make_profile
-
-        best = f"{study.blend}/{study.best_paper} (best paper)"
-        trajectories = {best: (study.paths["paper"], make_profile(study.best_paper)),
-                        "optimized": (study.paths["optimized"], shaped(jnp.asarray(study.coef)))}
-        rec["verification"] = {f"{m:g} kg": verify_trajectories(robot, cycle, trajectories, m, tf) for m in payloads}
     if out:
         out = Path(out)
         rows = trajectory_rows(robot.replace(payload=payloads[0]), study.paths["optimized"],
@@ -252,6 +245,16 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, steps=100, n_coef=6, tra
         write_trajectory_csv(out / "trajectory.csv", rows)
         figure(study, out)
         error_figure(study, out / "error_series.png")
+    if verify:
+        from jaxflex.compiled import release_compiled
+        from jaxflex.profiles import make_profile
+
+        release_compiled()          # the study's programs are done with (memory mappings, jaxflex.compiled)
+        best = f"{study.blend}/{study.best_paper} (best paper)"
+        trajectories = {best: (study.paths["paper"], make_profile(study.best_paper)),
+                        "optimized": (study.paths["optimized"], shaped(jnp.asarray(study.coef)))}
+        rec["verification"] = {f"{m:g} kg": verify_trajectories(robot, cycle, trajectories, m, tf) for m in payloads}
+    if out:
         write_json(out / "optimize.json", rec)
     return rec
 
