@@ -123,12 +123,8 @@ def remainder(robot: Robot, qa, qa1, qa2, ds, dds, x, qedd):
         return red.mass @ jnp.concatenate([qadd, z[2 * ne:]]) + red.force
 
     z = jnp.concatenate([x, qedd])
-    # R(0), R'(0) z and R(z) from one trace of the model: the JVP at the two points (0, z) with
-    # tangents (z, 0), vmapped (the second tangent is zero; tracing ``full`` apart would double the
-    # objective's trace and its compiled size)
-    zero = jnp.zeros_like(z)
-    vals, tans = jax.vmap(lambda p, t: jax.jvp(full, (p,), (t,)))(jnp.stack([zero, z]), jnp.stack([z, zero]))
-    return vals[1] - vals[0] - tans[0]
+    r0, r1 = jax.jvp(full, (jnp.zeros_like(z),), (z,))
+    return full(z) - r0 - r1
 
 
 def path_pose(robot: Robot, path: Path, s):
