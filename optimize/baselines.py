@@ -129,11 +129,24 @@ class LawEvaluator:
     """Metrics of any motion law along one path on a set of models (second-order fast model).
 
     The tables are built once per model; every law (paper, shaped, input-shaped, Ruckig samples)
-    reuses one compiled rollout."""
+    reuses one compiled rollout. ``chunk``: the models are simulated in batches of this many (the
+    last one padded with copies of the last model), so that evaluators of different model sets
+    with the same ``chunk`` share one compiled program; None: one batch of all the models."""
 
-    def __init__(self, models: ModelSet, path: Path, tf: float, dwell: float, grid: Grid):
-        self.models, self.path, self.tf, self.dwell, self.grid = models, path, tf, dwell, grid
-        self.tables = path_tables(models.robots, path)
+    def __init__(self, models: ModelSet, path: Path, tf: float, dwell: float, grid: Grid, *,
+                 chunk: int | None = None):
+        k = len(models.labels)
+        chunk = k if chunk is None else int(chunk)
+        if chunk < 1:
+            raise ValueError(f"chunk must be >= 1, got {chunk}")
+        self.models, self.path, self.tf, self.dwell, self.grid, self.chunk = models, path, tf, dwell, grid, chunk
+        pad = -k % chunk
+        robots = models.robots if not pad else jax.tree_util.tree_map(
+            lambda v: jnp.concatenate([v, jnp.repeat(v[-1:], pad, axis=0)]), models.robots)
+        tables = path_tables(robots, path)
+        part = lambda tree, i: jax.tree_util.tree_map(lambda v: v[i * chunk:(i + 1) * chunk], tree)
+        self._batches = [(part(tables, i), part(robots, i)) for i in range((k + pad) // chunk)]
+        self.tables = tables if not pad else jax.tree_util.tree_map(lambda v: v[:k], tables)   # the models'
 
     def with_grid(self, grid: Grid) -> "LawEvaluator":
         """The same path and models on another grid, sharing the tables (they do not depend on it)."""
@@ -146,21 +159,22 @@ class LawEvaluator:
 
         return motion_samples(self.path.length, profile, self.tf if tf is None else tf, self.grid)
 
-    def series(self, law, tf: float | None = None):
-        """The simulation ``Series`` of a law on every model (leading axis K)."""
+    def _run(self, fn, law, tf):
         tf = self.tf if tf is None else tf
         samples = law if isinstance(law, MotionSamples) else self.samples(law, tf)
-        return _law_series(self.tables, self.models.robots, samples, jnp.asarray(tf, dtype=float),
-                           jnp.asarray(self.dwell, dtype=float), self.grid)
+        args = (samples, jnp.asarray(tf, dtype=float), jnp.asarray(self.dwell, dtype=float), self.grid)
+        outs = [fn(tables, robots, *args) for tables, robots in self._batches]
+        k = len(self.models.labels)
+        return jax.tree_util.tree_map(lambda *v: jnp.concatenate(v)[:k], *outs)
+
+    def series(self, law, tf: float | None = None):
+        """The simulation ``Series`` of a law on every model (leading axis K)."""
+        return self._run(_law_series, law, tf)
 
     def __call__(self, law, tf: float | None = None) -> dict:
         """law: a Profile or MotionSamples -> metrics dict name -> (K,) numpy arrays. ``tf`` [s]
         overrides the motion time (same grid, no recompilation; MotionSamples must match it)."""
-        tf = self.tf if tf is None else tf
-        samples = law if isinstance(law, MotionSamples) else self.samples(law, tf)
-        out = _law_metrics(self.tables, self.models.robots, samples, jnp.asarray(tf, dtype=float),
-                           jnp.asarray(self.dwell, dtype=float), self.grid)
-        out = {k: np.asarray(v) for k, v in out.items()}
+        out = {k: np.asarray(v) for k, v in self._run(_law_metrics, law, tf).items()}
         bad = [k for k, v in out.items() if not np.all(np.isfinite(v))]
         if bad:
             raise FloatingPointError(f"non-finite {bad} for law {getattr(law, 'name', 'samples')}")

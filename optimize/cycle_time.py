@@ -95,10 +95,11 @@ def cycle_time_study(robot: Robot, cycle: Cycle, payload: float = 6.0, tf_ref: f
     models = training_models(robot, [payload], train)
     ref_eval = LawEvaluator(models, make_path(cycle, blend, 0.025), tf_ref, dwell, grid)
     bounds = torque_bounds(models, cycle, tf_ref, dwell, grid, ref_eval)       # per training model
+    chunk = len(models.labels)       # every evaluator in batches of this size: one rollout program
     nominal = model_set(robot, [payload])
     perturbed = model_set(robot, [payload], stiffness=PERTURB_E, payload_scale=PERTURB_PAYLOAD)
-    target_perturbed = float(np.max(LawEvaluator(perturbed, make_path(cycle, blend, 0.025), tf_ref, dwell, grid)(
-        make_profile(law))["dwell_residual_mm"]))
+    paper_perturbed = LawEvaluator(perturbed, make_path(cycle, blend, 0.025), tf_ref, dwell, grid, chunk=chunk)
+    target_perturbed = float(np.max(paper_perturbed(make_profile(law))["dwell_residual_mm"]))
     params = encode(cycle, start_design(cycle, n_coef))
     workspaces = build_workspace(models.robots, cycle)           # once for every tf
     opt_res, opt_worst, opt_tau, designs = [], [], [], []
@@ -110,10 +111,10 @@ def cycle_time_study(robot: Robot, cycle: Cycle, payload: float = 6.0, tf_ref: f
         params = result.params
         x = jax.tree_util.tree_map(np.asarray, decode(cycle, params))
         path = design_path(cycle, x, BLEND_FAMILY)
-        m = LawEvaluator(nominal, path, float(tf), dwell, grid)(shaped(x.coef))
+        m = LawEvaluator(nominal, path, float(tf), dwell, grid, chunk=chunk)(shaped(x.coef))
         opt_res.append(float(m["dwell_residual_mm"][0]))
         opt_tau.append(float(m["max_torque_nm"][0]))
-        opt_worst.append(float(np.max(LawEvaluator(perturbed, path, float(tf), dwell, grid)(
+        opt_worst.append(float(np.max(LawEvaluator(perturbed, path, float(tf), dwell, grid, chunk=chunk)(
             shaped(x.coef))["dwell_residual_mm"])))
         designs.append(x)
         if progress:

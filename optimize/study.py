@@ -2,9 +2,10 @@
 
 ``optimize_design`` is the whole study for one or several payloads at a fixed motion time:
 
-1. the 12 paper combinations (``jaxflex.sweep``) give the best one (smallest dwell residual; for
-   several payloads the smallest worst-case ratio to each payload's best) and the torque bound
-   (the poly7-Lamé peak torque, per payload);
+1. the 12 paper combinations, simulated on every training model (``paper_sweep``), give the best
+   one on the nominal models (smallest dwell residual; for several payloads the smallest
+   worst-case ratio to each payload's best), the torque bound (the poly7-Lamé peak torque, per
+   model) and the objective's scales (the best combination's residuals, per model);
 2. a design (Lamé blend parameters d, e, n of each corner and a shaped monotone motion law,
    ``jaxflex.designs``) is optimized by gradient (reverse mode through the table build and the
    whole second-order rollout, optax Adam) on the training models, each normalized by the best paper
@@ -35,7 +36,9 @@ from jaxflex.path import Cycle, Path, make_path
 from jaxflex.profiles import Profile, make_profile, shaped
 from jaxflex.robot import Robot
 from jaxflex.simulate import Grid, MotionSamples
-from jaxflex.sweep import Case, default_grid, run_sweep
+from jaxflex.blends import BLENDS
+from jaxflex.profiles import PROFILES
+from jaxflex.sweep import default_grid
 from jaxflex.workspace import Workspace, build_workspace
 
 from .baselines import LawEvaluator, ModelSet, model_set, place_first_mode_hz, ruckig_samples, shaper_profiles
@@ -104,13 +107,50 @@ class DesignStudy(NamedTuple):
         return self.evaluators["nominal"][c.path].series(c.law)
 
 
-def paper_best(robot: Robot, cycle: Cycle, payloads, tf, dwell, grid):
-    """Paper sweep per payload and the best combination (blend, law) for all of them together."""
-    res = run_sweep(robot, cycle, [Case(m, tf) for m in payloads], dwell=dwell, grid=grid)
-    dw = res.metrics["dwell_residual_mm"]                                  # (B, P, C)
-    ratio = np.max(dw / dw.min(axis=(0, 1), keepdims=True), axis=-1)       # worst over payloads
+class PaperSweep(NamedTuple):
+    """The 12 paper combinations on a set of models: ``metrics`` name -> (B, P, K) arrays (blend,
+    law, model), ``evaluators`` blend -> ``LawEvaluator`` of that blend's paper path (d = e = 25 mm,
+    n = 3) on the models."""
+
+    metrics: dict
+    blends: tuple
+    profiles: tuple
+    evaluators: dict
+
+
+def paper_sweep(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid: Grid, *, blends=BLENDS,
+                profiles=PROFILES) -> PaperSweep:
+    """Every blend x paper law on the models at motion time tf [s]: one table build per blend and
+    one compiled rollout program (the evaluators') for every law, blend and later evaluation on
+    the same number of models. Same model and metrics as ``jaxflex.sweep.run_sweep``."""
+    blends, profiles = tuple(blends), tuple(profiles)
+    evaluators = {b: LawEvaluator(models, make_path(cycle, b, 0.025), tf, dwell, grid) for b in blends}
+    runs = [[evaluators[b](make_profile(p)) for p in profiles] for b in blends]
+    mets = {k: np.stack([np.stack([r[k] for r in row]) for row in runs]) for k in runs[0][0]}
+    return PaperSweep(mets, blends, profiles, evaluators)
+
+
+def nominal_indices(models: ModelSet, robot: Robot, payloads: Sequence[float]) -> np.ndarray:
+    """Index in ``models`` of the nominal model (robot's stiffness, that payload) of each payload."""
+    m = np.asarray(models.robots.payload)
+    young = np.asarray(models.robots.young)
+    young0 = np.asarray(robot.young)
+    out = []
+    for p in payloads:
+        hit = np.flatnonzero((m == p) & np.all(young.reshape(len(m), -1) == young0.reshape(1, -1), axis=1))
+        if not hit.size:
+            raise ValueError(f"no nominal {p:g} kg model among {models.labels}")
+        out.append(int(hit[0]))
+    return np.asarray(out)
+
+
+def best_combination(dwell_residual) -> tuple[int, int]:
+    """(blend, law) indices of the best paper combination from dwell residuals (B, P, C): the
+    smallest one, for several payloads C the smallest worst-case ratio to each payload's best."""
+    dw = np.asarray(dwell_residual)
+    ratio = np.max(dw / dw.min(axis=(0, 1), keepdims=True), axis=-1)
     i, j = np.unravel_index(np.argmin(ratio), ratio.shape)
-    return res, res.blends[i], res.profiles[j]
+    return int(i), int(j)
 
 
 def start_design(cycle: Cycle, n_coef: int = 6) -> Design:
@@ -152,9 +192,13 @@ def reference_scales(evaluator: LawEvaluator, law, torque_bound, tf: float | Non
     vibration energy and mean-square dwell amplitude on that model at motion time tf [s] (default:
     the evaluator's), so the objective measures the improvement over the reference model by model;
     torque bound per model (K,) [N m]; ``weights`` (K,) of the models (None: equal)."""
-    ref = evaluator(law, tf=tf)
-    amp = ref["dwell_residual_mm"] * 1e-3
-    return Scales(energy=jnp.asarray(ref["residual_energy"]), dwell_ms=jnp.asarray(amp**2 / 2),
+    return scales_from_metrics(evaluator(law, tf=tf), torque_bound, weights)
+
+
+def scales_from_metrics(ref: dict, torque_bound, weights=None) -> Scales:
+    """``reference_scales`` from the reference law's metrics (name -> (K,)) on the models."""
+    amp = np.asarray(ref["dwell_residual_mm"]) * 1e-3
+    return Scales(energy=jnp.asarray(ref["residual_energy"], dtype=float), dwell_ms=jnp.asarray(amp**2 / 2),
                   torque_bound=jnp.asarray(torque_bound, dtype=float),
                   weights=None if weights is None else jnp.asarray(weights, dtype=float))
 
@@ -172,23 +216,23 @@ def optimize_design(robot: Robot, cycle: Cycle, payloads: Sequence[float] = (6.0
     if n_coef < 1 or steps < 0:
         raise ValueError(f"need n_coef >= 1 and steps >= 0, got {n_coef}, {steps}")
     grid = grid or default_grid(robot, [tf], dwell)
-    res, blend, law = paper_best(robot, cycle, payloads, tf, dwell, grid)
+    # the paper sweep on the training models: it gives the best combination (nominal models), the
+    # torque bounds and the objective's scales (every training model) with one rollout program
+    models = training_models(robot, payloads, train)
+    sweep = paper_sweep(models, cycle, tf, dwell, grid)
+    nominal = nominal_indices(models, robot, payloads)
+    paper = {k: v[..., nominal] for k, v in sweep.metrics.items()}                 # (B, P, C)
+    i, j = best_combination(paper["dwell_residual_mm"])
+    blend, law = sweep.blends[i], sweep.profiles[j]
     if progress:
         print(f"best paper combination at tf = {tf:g} s for {list(payloads)} kg: {blend} / {law}", flush=True)
-    paths = {"paper": make_path(cycle, blend, 0.025)}
-    sets = {
-        "nominal": model_set(robot, payloads),
-        "perturbed": model_set(robot, payloads, stiffness=PERTURB_E, payload_scale=PERTURB_PAYLOAD),
-        "damped": model_set(robot, payloads, damping_ratio=DAMPING_RATIO, cycle=cycle),
-    }
-    freqs = tuple(place_first_mode_hz(robot.replace(payload=m), cycle) for m in payloads)
-    i_lame = res.blends.index("lame") if "lame" in res.blends else 0
-    torque_bound = np.asarray(res.metrics["max_torque_nm"][i_lame, res.profiles.index("poly7"), :])
-
-    models = training_models(robot, payloads, train)
-    train_paper = LawEvaluator(models, paths["paper"], tf, dwell, grid)
-    bounds = torque_bounds(models, cycle, tf, dwell, grid, train_paper)
-    scales = reference_scales(train_paper, make_profile(law), bounds, weights=training_weights(train, len(payloads)))
+    paths = {"paper": sweep.evaluators[blend].path}
+    i_lame, j_poly7 = sweep.blends.index("lame"), sweep.profiles.index("poly7")
+    bounds = sweep.metrics["max_torque_nm"][i_lame, j_poly7]                 # per training model (K,)
+    torque_bound = bounds[nominal]
+    ref = {k: v[i, j] for k, v in sweep.metrics.items()}
+    scales = scales_from_metrics(ref, bounds, training_weights(train, len(payloads)))
+    train_paper = sweep.evaluators[blend]
     label = f"{'design' if free_path else 'law'} tf={tf:g}"
     workspaces = build_workspace(models.robots, cycle) if free_path else None
     setup_s = time.time() - started
@@ -207,6 +251,13 @@ def optimize_design(robot: Robot, cycle: Cycle, payloads: Sequence[float] = (6.0
         x, coef = None, np.asarray(result.params)
         paths["optimized"] = paths["paper"]
 
+    # the evaluation sets (built after the optimizer: the damped set needs each model's first mode)
+    sets = {
+        "nominal": model_set(robot, payloads),
+        "perturbed": model_set(robot, payloads, stiffness=PERTURB_E, payload_scale=PERTURB_PAYLOAD),
+        "damped": model_set(robot, payloads, damping_ratio=DAMPING_RATIO, cycle=cycle),
+    }
+    freqs = tuple(place_first_mode_hz(robot.replace(payload=m), cycle) for m in payloads)
     # baselines on the best paper path: the best law, its shaped versions (first payload's mode), Ruckig
     candidates = {f"{blend}/{law} (best paper)": Candidate("paper", make_profile(law))}
     for p in shaper_profiles(law, freqs[0], tf):
@@ -220,12 +271,14 @@ def optimize_design(robot: Robot, cycle: Cycle, payloads: Sequence[float] = (6.0
             if progress:
                 print(f"  (Ruckig baseline skipped: {err})", flush=True)
     candidates["optimized"] = Candidate("optimized", shaped(jnp.asarray(coef), name="optimized"))
-    evaluators = {k: {"paper": LawEvaluator(s, paths["paper"], tf, dwell, grid)} for k, s in sets.items()}
+    # every set in batches of the training set's size: the rollout program compiled for the paper
+    # sweep serves every evaluation
+    chunk = len(models.labels)
+    evaluators = {k: {"paper": LawEvaluator(s, paths["paper"], tf, dwell, grid, chunk=chunk)} for k, s in sets.items()}
     for k, s in sets.items():
         evaluators[k]["optimized"] = (evaluators[k]["paper"] if paths["optimized"] is paths["paper"]
-                                      else LawEvaluator(s, paths["optimized"], tf, dwell, grid))
+                                      else LawEvaluator(s, paths["optimized"], tf, dwell, grid, chunk=chunk))
     evaluations = {k: {name: evaluators[k][c.path](c.law) for name, c in candidates.items()} for k in sets}
-    paper = {k: np.asarray(v) for k, v in res.metrics.items()}
     return DesignStudy(payloads, tf, blend, law, x, coef, result, train, models.labels, candidates, paths, evaluations,
                        {k: s.labels for k, s in sets.items()}, paper, torque_bound, limits, freqs, grid,
                        time.time() - started, evaluators, setup_s)

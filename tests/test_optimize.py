@@ -128,3 +128,39 @@ def test_design_gradient_wrt_blend_parameters_matches_central_differences(tables
     for i in range(6):
         fd = float(_central(lambda u: f(Params(u, p0.coef))[0], p0.blend, i, 1e-4))
         assert abs(float(grad.blend[i]) - fd) <= 1e-5 * abs(fd), (i, float(grad.blend[i]), fd)
+
+
+def test_paper_sweep_on_training_models_matches_run_sweep_and_chunks_do_not_change_metrics():
+    """The study's paper sweep (``paper_sweep``: one evaluator per blend on the training models)
+    gives the nominal model the metrics of ``run_sweep`` (same model, different programs: equal to
+    rounding), and an evaluator that simulates its models in padded batches (``chunk``: the nine
+    perturbed models as 5 + 4 and one padding copy) returns, for the five models it shares with the
+    training set, the training evaluator's metrics. Small model and coarse grid: the code path, not
+    the physics, is under test."""
+    from jaxflex.optimize.baselines import LawEvaluator, model_set
+    from jaxflex.optimize.study import PERTURB_E, PERTURB_PAYLOAD, nominal_indices, paper_sweep, training_models
+    from jaxflex.profiles import make_profile
+    from jaxflex.sweep import Case, run_sweep
+
+    robot, cycle = robot_preset("default", n_bending=1, n_axial=1), cycle_preset()
+    grid = default_grid(robot, [TF], DWELL, dt=2e-3)._replace(dwell_steps=500, unroll=1)
+    blends, laws = ("lame",), ("poly7", "trap_1_4")
+    models = training_models(robot, [6.0], "spanning")
+    sweep = paper_sweep(models, cycle, TF, DWELL, grid, blends=blends, profiles=laws)
+    res = run_sweep(robot, cycle, [Case(6.0, TF)], blends=blends, profiles=laws, grid=grid)
+    i = int(nominal_indices(models, robot, [6.0])[0])
+    for name in ("dwell_residual_mm", "max_torque_nm", "residual_energy", "max_deflection_mm"):
+        assert sweep.metrics[name].shape == (1, 2, 5)
+        np.testing.assert_allclose(sweep.metrics[name][..., i], res.metrics[name][..., 0], rtol=1e-9, err_msg=name)
+    # the perturbation corners differ from the nominal model (the sweep really ran on each model)
+    dw = sweep.metrics["dwell_residual_mm"]
+    assert np.all(np.abs(dw[..., 1:] / dw[..., :1] - 1) > 1e-3)
+    perturbed = model_set(robot, [6.0], stiffness=PERTURB_E, payload_scale=PERTURB_PAYLOAD)
+    chunked = LawEvaluator(perturbed, sweep.evaluators["lame"].path, TF, DWELL, grid, chunk=5)(make_profile("poly7"))
+    same = [4, 0, 2, 6, 8]      # the spanning models' places in the perturbed set (E outer, payload inner)
+    assert [perturbed.labels[k] for k in same] == list(models.labels)
+    for name, v in chunked.items():
+        assert v.shape == (9,)
+        np.testing.assert_allclose(v[same], sweep.metrics[name][0, 0], rtol=1e-12, atol=0, err_msg=name)
+    with pytest.raises(ValueError, match="chunk"):
+        LawEvaluator(perturbed, sweep.evaluators["lame"].path, TF, DWELL, grid, chunk=0)

@@ -27,9 +27,9 @@
 # Full mode runs the library's whole study, `jaxflex.optimize.study.optimize_design`: the design is
 # the Lamé blend (d, e, n) of both corners plus a shaped monotone motion law
 # (`jaxflex.profiles.shaped`: zero velocity and acceleration at both ends for any coefficients),
-# trained on three models (nominal and the perturbation corners with the lowest and highest first
-# frequency), second-order fast model, 100 Adam steps, then evaluated on nominal, perturbed
-# (E +-5 %, payload +-10 %) and damped models beside the ZV/ZVD input-shaped and Ruckig baselines.
+# trained on five models (nominal and the four corners of the perturbation box E +-5 %, payload
+# +-10 %), second-order fast model, 100 Adam steps, then evaluated on nominal, perturbed (the nine
+# models of that box) and damped models beside the ZV/ZVD input-shaped and Ruckig baselines.
 # The first run compiles the design gradient (several minutes on 2 cores; the CLI's persistent cache
 # keeps it). `JAXFLEX_QUICK=1` runs steps 1-3 with the study's building blocks on a small model (one
 # assumed mode per link, the Lamé blend only, ~2 ms steps, first-order model, nominal model only) and
@@ -134,7 +134,7 @@ else:
     study = optimize_design(robot, cycle, (PAYLOAD,), TF, dwell=DWELL, n_coef=N_COEF, steps=STEPS,
                             learning_rate=LEARNING_RATE, checkpoint=checkpoint)
     paper = study.paper
-    paper_blends, paper_profiles = BLENDS, PROFILES                        # paper_best sweeps them all
+    paper_blends, paper_profiles = BLENDS, PROFILES                        # the study sweeps them all
     blend, best_law, coef, result = study.blend, study.best_paper, study.coef, study.result
     path = study.paths["optimized"]
     x = study.design
