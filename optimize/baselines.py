@@ -146,7 +146,7 @@ class LawEvaluator:
         tables = path_tables(robots, path)
         part = lambda tree, i: jax.tree_util.tree_map(lambda v: v[i * chunk:(i + 1) * chunk], tree)
         self._batches = [(part(tables, i), part(robots, i)) for i in range((k + pad) // chunk)]
-        self.tables = tables if not pad else jax.tree_util.tree_map(lambda v: v[:k], tables)   # the models'
+        self.tables = tables if not pad else jax.tree_util.tree_map(lambda v: v[:k], tables)   # without padding
 
     def with_grid(self, grid: Grid) -> "LawEvaluator":
         """The same path and models on another grid, sharing the tables (they do not depend on it)."""
