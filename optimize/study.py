@@ -31,13 +31,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxflex.blends import BLENDS
 from jaxflex.designs import Design, design, design_path
 from jaxflex.path import Cycle, Path, make_path
-from jaxflex.profiles import Profile, make_profile, shaped
+from jaxflex.profiles import PROFILES, Profile, make_profile, shaped
 from jaxflex.robot import Robot
 from jaxflex.simulate import Grid, MotionSamples
-from jaxflex.blends import BLENDS
-from jaxflex.profiles import PROFILES
 from jaxflex.sweep import default_grid
 from jaxflex.workspace import Workspace, build_workspace
 
