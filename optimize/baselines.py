@@ -165,6 +165,8 @@ class LawEvaluator:
         args = (samples, jnp.asarray(tf, dtype=float), jnp.asarray(self.dwell, dtype=float), self.grid)
         outs = [fn(tables, robots, *args) for tables, robots in self._batches]
         k = len(self.models.labels)
+        if len(outs) == 1 and self.chunk == k:          # one unpadded batch: no copy
+            return outs[0]
         return jax.tree_util.tree_map(lambda *v: jnp.concatenate(v)[:k], *outs)
 
     def series(self, law, tf: float | None = None):

@@ -131,12 +131,10 @@ def paper_sweep(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid: G
 
 def nominal_indices(models: ModelSet, robot: Robot, payloads: Sequence[float]) -> np.ndarray:
     """Index in ``models`` of the nominal model (robot's stiffness, that payload) of each payload."""
-    m = np.asarray(models.robots.payload)
-    young = np.asarray(models.robots.young)
-    young0 = np.asarray(robot.young)
+    m, young = np.asarray(models.robots.payload), np.asarray(models.robots.young)
     out = []
     for p in payloads:
-        hit = np.flatnonzero((m == p) & np.all(young.reshape(len(m), -1) == young0.reshape(1, -1), axis=1))
+        hit = np.flatnonzero((m == p) & (young == float(robot.young)))
         if not hit.size:
             raise ValueError(f"no nominal {p:g} kg model among {models.labels}")
         out.append(int(hit[0]))
