@@ -13,6 +13,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxflex import checks
 from jaxflex.linearized import path_tables
 from jaxflex.optimize.loop import value_and_grad_fwd
 from jaxflex.path import make_path
@@ -93,6 +94,7 @@ def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwe
 def compute(repeats: int = 5) -> dict:
     """Time the 24-rollout sweep and the law/design gradients (median of ``repeats``); the JSON record."""
     started = time.time()
+    repeats = checks.count("repeats", repeats)
     robot, cycle = robot_preset("default"), cycle_preset()
     print("sweep: 12 combinations x 2 cases (6 kg/0.43 s, 0.1 kg/0.3 s), motion + 0.1 s dwell ...",
           flush=True)

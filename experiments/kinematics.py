@@ -10,7 +10,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxflex import plotting
+from jaxflex import checks, plotting
 from jaxflex.blends import BLENDS, blend_frame, make_blend
 from jaxflex.profiles import PROFILES, make_profile, profile_eval
 from jaxflex.robot import cycle_preset, robot_preset
@@ -107,6 +107,7 @@ def figures(preset: str, out: Path) -> dict:
 def compute(preset: str = "default", tf: float = 1.0, steps: int = 20000) -> dict:
     """All kinematic tables as the SPEC 7 JSON structure (plus paper values and provenance)."""
     started = time.time()
+    tf, steps = checks.positive("tf", tf, "s"), checks.count("steps", steps, 2)
     result = {"preset": preset, "tf": tf, "blend_length_mm": blend_lengths_mm()}
     result.update(accelerations(preset, tf, steps))
     result["paper"] = {"blend_length_mm": paper_data.TABLE2_BLEND_LENGTH_MM,

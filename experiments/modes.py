@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxflex import plotting
+from jaxflex import checks, plotting
 from jaxflex.model import modes_at_point
 from jaxflex.path import make_path, path_frame
 from jaxflex.robot import check_cycle_reachable, cycle_preset, robot_preset
@@ -27,8 +27,8 @@ def _along(robot, path, s):
 def compute(preset: str = "default", payload: float = 6.0, points: int = 21, blend: str = "lame",
             d: float = 0.025) -> dict:
     """Locked-motor frequencies [Hz] at ``points`` equally spaced arc lengths of the blended path."""
-    if int(points) < 2:
-        raise ValueError(f"--points must be >= 2, got {points}")
+    points = checks.count("points", points, 2)
+    payload = checks.nonnegative("payload", payload, "kg")
     started = time.time()
     robot, cycle = robot_preset(preset, payload=payload), cycle_preset(preset)
     check_cycle_reachable(robot, cycle)

@@ -25,6 +25,10 @@ def run(out: str = "results", quick: bool = False, vibration: bool = True, optim
     for both paper cases (resumable: checkpoints in DIR/optimize_*) and the cycle-time study."""
     with_vibration = vibration
     started = time.time()
+    if not isinstance(out, (str, Path)) or not str(out):
+        raise ValueError(f"out must be a directory path, got {out!r}")
+    if Path(out).exists() and not Path(out).is_dir():
+        raise ValueError(f"out {str(out)!r} exists and is not a directory")
     from jaxflex import __version__
     key = {"jaxflex_version": __version__, "quick": quick}     # sections computed with these resume
     out = Path(out)

@@ -2,7 +2,9 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
+import traceback
 
 
 def _add_common(p, preset=True):
@@ -170,14 +172,26 @@ def main(argv=None) -> int:
 
             reproduce.run(args.out, quick=args.quick, vibration=args.vibration, optimize=args.optimize)
     except ValueError as err:
-        print(f"jaxflex {args.command}: error: {err}", file=sys.stderr)
+        print(f"jaxflex {args.command}: error: {_one_line(err)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"\njaxflex {args.command}: interrupted. Outputs are written atomically (no half-written "
               "files); rerun the same command to resume from the finished sections and checkpoints.",
               file=sys.stderr)
         return 130
+    except Exception as err:        # noqa: BLE001 - an unexpected failure: one line, not a traceback
+        if os.environ.get("JAXFLEX_TRACEBACK"):
+            traceback.print_exc()
+        print(f"jaxflex {args.command}: failed: {type(err).__name__}: {_one_line(err)} (set "
+              "JAXFLEX_TRACEBACK=1 for the traceback)", file=sys.stderr)
+        return 1
     return 0
+
+
+def _one_line(err: BaseException) -> str:
+    """The exception's message on one line (XLA and numpy messages can span many)."""
+    text = " ".join(str(err).split())
+    return text if len(text) <= 500 else text[:497] + "..."
 
 
 if __name__ == "__main__":  # pragma: no cover

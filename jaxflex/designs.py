@@ -19,9 +19,11 @@ import jax.numpy as jnp
 import numpy as np
 from jax.sharding import NamedSharding, PartitionSpec
 
+from jaxflex import checks
+from jaxflex.blends import BLENDS
 from jaxflex.linearized import build_tables
 from jaxflex.metrics import metrics
-from jaxflex.path import Cycle, Path, make_path
+from jaxflex.path import Cycle, Path, check_path_args, make_path
 from jaxflex.profiles import shaped
 from jaxflex.robot import Robot
 from jaxflex.simulate import Grid, Series, check_grid, motion_samples, rollout
@@ -95,12 +97,25 @@ def sweep_designs(robot: Robot, cycle: Cycle, xs: Design, *, tf: float, dwell: f
     (default: all local devices) along a one-dimensional mesh axis ``"design"``. One compilation
     serves every chunk. Raises ValueError on inconsistent shapes and FloatingPointError naming the
     first design with a non-finite metric."""
+    tf, dwell = checks.positive("tf", tf, "s"), checks.positive("dwell", dwell, "s")
+    blend = checks.one_of("blend", blend, BLENDS)
     check_grid(grid)
+    if chunk is not None:
+        chunk = checks.count("chunk", chunk)
     leaves = [jnp.asarray(v, dtype=float) for v in xs]
     size = leaves[0].shape[0] if leaves[0].ndim == 2 else 0
     if size == 0 or any(v.shape[:1] != (size,) for v in leaves) or any(v.shape != (size, 2) for v in leaves[:3]):
         raise ValueError("designs need a common leading batch axis D and a corner axis (D, 2) for d, e, n; "
                          f"got shapes {[v.shape for v in leaves]}")
+    if leaves[3].ndim != 2:
+        raise ValueError(f"design coefficients must have shape (D, m + 1), got {leaves[3].shape}")
+    host = [np.asarray(v) for v in leaves]
+    for i in range(size):                    # every design valid before anything compiles
+        try:
+            check_path_args(cycle, blend, *(float(host[k][i, c]) for c in range(2) for k in range(3)))
+            shaped(host[3][i], order)
+        except ValueError as err:
+            raise ValueError(f"design {i}: {err}") from None
     devices = list(jax.local_devices() if devices is None else devices)
     chunk = chunk or 4 * len(devices)
     if chunk % len(devices):

@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxflex import checks
 from jaxflex.blends import BLENDS
 from jaxflex.expm import squarings_for
 from jaxflex.linearized import Tables, coeffs_many, table_poses
@@ -23,7 +24,6 @@ from jaxflex.path import check_path_args, make_path
 from jaxflex.profiles import PROFILES, make_profile
 from jaxflex.robot import Robot, check_cycle_reachable
 from jaxflex.simulate import Grid, check_grid, motion_samples, rollout
-from jaxflex.trajectory import check_tf
 
 
 class Case(NamedTuple):
@@ -41,10 +41,9 @@ def default_grid(robot: Robot, tfs, dwell: float, dt: float | None = None) -> Gr
 
     The squaring count bounds ||A h|| <= 4 omega_max h with omega_max estimated from the highest
     assumed mode of a free link (the assembled robot's highest mode lies below twice that)."""
-    dt = 1e-4 if dt is None else float(dt)
-    if not dt > 0:
-        raise ValueError(f"time step dt must be > 0 s, got {dt}")
-    tf_max = max(float(t) for t in tfs)
+    dt = 1e-4 if dt is None else checks.positive("dt", dt, "s")
+    dwell = checks.positive("dwell", dwell, "s")
+    tf_max = max(checks.positives("tf", tfs, "s"))
     coarse = 8 * max(1, round(tf_max / 8 / 2.25e-3))         # ~2.25 ms frozen intervals (dt study)
     fine = max(1, math.ceil(tf_max / coarse / dt))
     dwell_steps = max(1, math.ceil(dwell / dt))
@@ -162,18 +161,20 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES, *, d=0.0
     """
     e = d if e is None else e
     blends, profiles, cases = tuple(blends), tuple(profiles), tuple(Case(*c) for c in cases)
-    for b in blends:
-        check_path_args(cycle, b, d, e, n, d, e, n)
-    for p in profiles:
-        make_profile(p)
     if not cases:
         raise ValueError("no simulation cases given")
-    for c in cases:
-        check_tf(c.tf)
-        if not (math.isfinite(c.payload) and c.payload >= 0):
-            raise ValueError(f"payload must be finite and >= 0 kg, got {c.payload}")
-    if not (math.isfinite(dwell) and dwell > 0):
-        raise ValueError(f"dwell must be > 0 s, got {dwell}")
+    cases = tuple(Case(checks.nonnegative("payload", c.payload, "kg"), checks.positive("tf", c.tf, "s"))
+                  for c in cases)
+    dwell = checks.positive("dwell", dwell, "s")
+    if dt is not None:
+        dt = checks.positive("dt", dt, "s")
+    repeats = checks.count("repeats", repeats)
+    if not blends or not profiles:
+        raise ValueError("blends and profiles must not be empty")
+    for p in profiles:
+        checks.one_of("motion profile", p, PROFILES)
+    for b in blends:
+        check_path_args(cycle, b, d, e, n, d, e, n)
     check_cycle_reachable(robot, cycle)
     grid = grid or default_grid(robot, [c.tf for c in cases], dwell, dt)
     check_grid(grid)
@@ -193,7 +194,7 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES, *, d=0.0
     out = jax.block_until_ready(_rollouts_jit(*args, **kw))
     first = time.perf_counter() - t0
     runs = []
-    for _ in range(max(1, repeats)):
+    for _ in range(repeats):
         t0 = time.perf_counter()
         out = jax.block_until_ready(_rollouts_jit(*args, **kw))
         runs.append(time.perf_counter() - t0)

@@ -22,6 +22,7 @@ from typing import NamedTuple, Sequence
 import jax
 import numpy as np
 
+from jaxflex import checks
 from jaxflex.designs import design_path
 from jaxflex.path import Cycle, make_path
 from jaxflex.profiles import make_profile, shaped
@@ -31,8 +32,8 @@ from jaxflex.workspace import build_workspace
 
 from .baselines import LawEvaluator, model_set
 from .objective import decode, encode
-from .study import (BLEND_FAMILY, PERTURB_E, PERTURB_PAYLOAD, nominal_indices, reference_scales, start_design,
-                    torque_bounds, train_design, training_models, training_weights)
+from .study import (BLEND_FAMILY, PERTURB_E, PERTURB_PAYLOAD, check_study_args, nominal_indices, reference_scales,
+                    start_design, torque_bounds, train_design, training_models, training_weights)
 
 TORQUE_TOL = 1.01   # a design counts when its peak torque is within 1 % of the bound (soft penalty)
 
@@ -71,9 +72,9 @@ def cycle_time_study(robot: Robot, cycle: Cycle, payload: float = 6.0, tf_ref: f
                      progress: bool = True) -> CycleTimeStudy:
     """Run the study (module docstring). ``tfs`` [s] are visited in descending order."""
     started = time.time()
-    tfs = np.asarray([float(t) for t in tfs])
-    if not np.all(tfs > 0):
-        raise ValueError(f"motion times must be > 0 s, got {tfs.tolist()}")
+    (payload,), tf_ref, dwell = check_study_args(robot, cycle, [payload], tf_ref, dwell, n_coef, steps,
+                                                 learning_rate, train)
+    tfs = np.asarray(checks.positives("tfs", tfs, "s"))
     if tf_ref not in tfs:
         tfs = np.append(tfs, tf_ref)
     tfs = np.sort(tfs)[::-1]

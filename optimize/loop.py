@@ -23,6 +23,8 @@ import numpy as np
 import optax
 from jax.flatten_util import ravel_pytree
 
+from jaxflex import checks
+
 
 def value_and_grad_fwd(f: Callable) -> Callable:
     """(value, aux), gradient of a scalar function f(params) -> (value, aux) by forward mode."""
@@ -126,8 +128,12 @@ def minimize(f: Callable, params0, *, args: tuple = (), steps: int = 100, learni
     every history row after (step, value)."""
     if mode not in ("reverse", "forward"):
         raise ValueError(f"mode must be 'reverse' or 'forward', got {mode!r}")
-    if not (np.isfinite(learning_rate) and learning_rate > 0):
-        raise ValueError(f"learning_rate must be > 0, got {learning_rate}")
+    checks.positive("learning_rate", learning_rate)
+    steps = checks.count("steps", steps, 0)
+    patience = checks.count("patience", patience, 1)
+    checks.nonnegative("rel_tol", rel_tol)
+    if target is not None and not np.isnan(target):
+        float(target)
     update = functools.partial(_update, f=f, mode=mode)
     params, state = params0, _optimizer().init(params0)
     history, times, step, best, best_value, best_aux = [], [], 0, params0, np.inf, None

@@ -31,12 +31,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxflex import checks
 from jaxflex.blends import BLENDS
 from jaxflex.designs import Design, design, design_path
 from jaxflex.path import Cycle, Path, make_path
 from jaxflex.profiles import PROFILES, Profile, make_profile, shaped
-from jaxflex.robot import Robot
-from jaxflex.simulate import Grid, MotionSamples
+from jaxflex.robot import Robot, check_cycle_reachable
+from jaxflex.simulate import Grid, MotionSamples, check_grid
 from jaxflex.sweep import default_grid
 from jaxflex.workspace import Workspace, build_workspace
 
@@ -51,6 +52,23 @@ DAMPING_RATIO = 0.01
 TRAINING_SETS = ("nominal", "spanning", "perturbed")
 BLEND_FAMILY = "lame"               # the optimized design's blend family (d, e, n per corner)
 START_D_FRACTION = 0.98             # start: d = 0.98 h (d = h is the open end of the decoded range)
+
+
+def check_study_args(robot: Robot, cycle: Cycle, payloads, tf, dwell, n_coef, steps, learning_rate,
+                     train) -> tuple:
+    """Eager validation of an optimization study's arguments (SPEC 8: before anything compiles);
+    returns (payloads tuple, tf, dwell) as floats. Raises ValueError naming the argument."""
+    payloads = checks.nonnegatives("payloads", payloads, "kg")
+    if any(m <= 0 for m in payloads):
+        raise ValueError(f"payloads must be > 0 kg for an optimization study (the torque bound and the "
+                         f"perturbed models scale with them), got {list(payloads)}")
+    tf, dwell = checks.positive("tf", tf, "s"), checks.positive("dwell", dwell, "s")
+    checks.count("n_coef", n_coef, 1)
+    checks.count("steps", steps, 0)
+    checks.positive("learning_rate", learning_rate)
+    checks.one_of("training set", train, TRAINING_SETS)
+    check_cycle_reachable(robot, cycle)
+    return payloads, tf, dwell
 
 
 def training_models(robot: Robot, payloads: Sequence[float], kind: str = "spanning") -> ModelSet:
@@ -207,12 +225,12 @@ def optimize_design(robot: Robot, cycle: Cycle, payloads: Sequence[float] = (6.0
     """Run the study (see module docstring). Returns a ``DesignStudy``. ``init``: starting design
     (default ``start_design``)."""
     started = time.time()
-    payloads = tuple(float(m) for m in payloads)
-    if train not in TRAINING_SETS:
-        raise ValueError(f"unknown training set {train!r}; choose one of {TRAINING_SETS}")
-    if n_coef < 1 or steps < 0:
-        raise ValueError(f"need n_coef >= 1 and steps >= 0, got {n_coef}, {steps}")
+    payloads, tf, dwell = check_study_args(robot, cycle, payloads, tf, dwell, n_coef, steps, learning_rate, train)
+    if init is not None:
+        design_path(cycle, init, BLEND_FAMILY)
+        shaped(init.coef)
     grid = grid or default_grid(robot, [tf], dwell)
+    check_grid(grid)
     # the paper sweep on the training models: it gives the best combination (nominal models), the
     # torque bounds and the objective's scales (every training model) with one rollout program
     models = training_models(robot, payloads, train)
@@ -308,6 +326,8 @@ def train_design(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid: 
     inside the objective come from the models' workspace tables (``jaxflex.workspace``, built here
     or passed as ``workspaces``): the gradient compiles in about a third of the time it takes
     through the model's table build."""
+    _check_training(tf, dwell, steps, learning_rate)
+    check_grid(grid)
     f = _design_objective(grid)
     if workspaces is None:
         workspaces = build_workspace(models.robots, cycle)
@@ -322,12 +342,20 @@ def train_law(train: LawEvaluator, path: Path, tf: float, scales: Scales, init, 
               label: str = "law") -> OptResult:
     """Optimize the shaped-law coefficients (start ``init`` (m + 1,)) on the training models of
     ``train`` (its path) at motion time tf [s] with the normalization ``scales``."""
+    _check_training(tf, train.dwell, steps, learning_rate)
     f = _law_objective(train.grid)
     args = (train.tables, jnp.asarray(path.length), jnp.asarray(tf, dtype=float),
             jnp.asarray(train.dwell, dtype=float), scales, train.models.robots)
     return minimize(f, jnp.asarray(init, dtype=float), args=args, steps=steps, learning_rate=learning_rate,
                     checkpoint=checkpoint, patience=patience, progress=progress, label=label, decay=True,
                     monitor=_dwell)
+
+
+def _check_training(tf, dwell, steps, learning_rate):
+    checks.positive("tf", tf, "s")
+    checks.positive("dwell", dwell, "s")
+    checks.count("steps", steps, 0)
+    checks.positive("learning_rate", learning_rate)
 
 
 def _dwell(aux):
@@ -344,6 +372,8 @@ def verify(robot: Robot, cycle: Cycle, trajectories: dict, payload: float, tf: f
     from jaxflex.metrics import metrics
     from jaxflex.reference import reference_rollout
 
+    payload = checks.nonnegative("payload", payload, "kg")
+    tf, dwell, rk4_dt = (checks.positive(k, v, "s") for k, v in (("tf", tf), ("dwell", dwell), ("rk4_dt", rk4_dt)))
     r = robot.replace(payload=payload)
     g = default_grid(robot, [tf], dwell)
     fine = Grid(coarse=4 * g.coarse, fine=g.fine, dwell_steps=4 * g.dwell_steps, squarings=g.squarings)
