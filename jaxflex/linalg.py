@@ -97,14 +97,12 @@ def _lower_sym(a):
 def cholesky(a: jax.Array) -> jax.Array:
     """Lower Cholesky factor L (a = L L^T) of a symmetric positive definite matrix, (n, n)."""
     n = a.shape[-1]
-    cols = []
-    for j in range(n):
-        v = a[:, j]
-        for i, c in enumerate(cols):
-            v = v - c * c[j]
-        d = jnp.sqrt(v[j])
-        cols.append(jnp.where(jnp.arange(n) >= j, v / d, 0.0))
-    return jnp.stack(cols, axis=1)
+    rows = jnp.arange(n)
+    lower = jnp.zeros_like(a)
+    for j in range(n):             # column j from the columns before it: one matrix-vector product
+        v = a[:, j] - lower @ lower[j]
+        lower = lower.at[:, j].set(jnp.where(rows >= j, v / jnp.sqrt(v[j]), 0.0))
+    return lower
 
 
 @cholesky.defjvp
@@ -118,14 +116,11 @@ def _cholesky_jvp(primals, tangents):
 
 
 def forward_substitution(lower: jax.Array, b: jax.Array) -> jax.Array:
-    """Solve L y = b for lower-triangular L (n, n); b (n,) or (n, k) (unrolled)."""
-    rows = []
+    """Solve L y = b for lower-triangular L (n, n); b (n,) or (n, k) (unrolled, one row at a time)."""
+    y = jnp.zeros_like(b)
     for i in range(lower.shape[-1]):
-        acc = b[i]
-        for j, r in enumerate(rows):
-            acc = acc - lower[i, j] * r
-        rows.append(acc / lower[i, i])
-    return jnp.stack(rows)
+        y = y.at[i].set((b[i] - lower[i] @ y) / lower[i, i])
+    return y
 
 
 @jax.custom_jvp
@@ -150,14 +145,11 @@ def spd_solve(a: jax.Array, b: jax.Array) -> jax.Array:
     _check_solve(a, b, "spd_solve")
     n = a.shape[-1]
     lower = cholesky(a)
-    ys = forward_substitution(lower, b)
-    xs = [None] * n
-    for i in reversed(range(n)):
-        acc = ys[i]
-        for j in range(i + 1, n):
-            acc = acc - lower[j, i] * xs[j]
-        xs[i] = acc / lower[i, i]
-    return jnp.stack(xs)
+    y = forward_substitution(lower, b)
+    x = jnp.zeros_like(b)
+    for i in reversed(range(n)):     # L^T x = y, one row at a time
+        x = x.at[i].set((y[i] - lower[:, i] @ x) / lower[i, i])
+    return x
 
 
 @spd_solve.defjvp

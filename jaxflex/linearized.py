@@ -123,8 +123,16 @@ def remainder(robot: Robot, qa, qa1, qa2, ds, dds, x, qedd):
         return red.mass @ jnp.concatenate([qadd, z[2 * ne:]]) + red.force
 
     z = jnp.concatenate([x, qedd])
-    r0, r1 = jax.jvp(full, (jnp.zeros_like(z),), (z,))
-    return full(z) - r0 - r1
+    # R(tz) at t = 0, 1/2, -1/2, 1, -1 (one vmapped trace of the model) and R'(0) z by Richardson
+    # extrapolation of the central differences (exact up to the fifth-order term, |z|^5 ~ 1e-25
+    # here): the same value as a JVP to round-off (~1e-12 N of ~1e-3..1e-2 N), without nesting the
+    # model's own derivatives inside a second derivative (the compiled rollout and its gradient are
+    # 2-3x smaller)
+    r0, rp, rm, r1, r1m = jax.vmap(lambda t: full(t * z))(jnp.asarray(_REMAINDER_T))
+    return (r1 - r0) - (8.0 * (rp - rm) - (r1 - r1m)) / 6.0
+
+
+_REMAINDER_T = (0.0, 0.5, -0.5, 1.0, -1.0)
 
 
 def path_pose(robot: Robot, path: Path, s):

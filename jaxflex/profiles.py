@@ -22,7 +22,6 @@ Derivatives are with respect to eta; ``time_scaled`` converts them to time for a
 from __future__ import annotations
 
 import dataclasses
-import math
 from typing import NamedTuple
 
 import jax
@@ -183,11 +182,13 @@ def _trapezoid(ta, eta, side):
 
 
 def _bernstein(coef, x):
-    """sum_k coef_k C(m, k) x^k (1 - x)^(m - k) for x of any shape (integer powers: exact
-    derivatives at the ends)."""
-    m = coef.shape[0] - 1
-    basis = jnp.stack([math.comb(m, k) * x**k * (1.0 - x) ** (m - k) for k in range(m + 1)], axis=-1)
-    return basis @ coef
+    """sum_k coef_k C(m, k) x^k (1 - x)^(m - k) for x of any shape, by de Casteljau's algorithm (m
+    rounds of linear interpolation: no powers, exact derivatives at the ends, a small program)."""
+    b = jnp.broadcast_to(coef, jnp.shape(x) + coef.shape)
+    xe = jnp.expand_dims(x, -1)
+    for _ in range(coef.shape[0] - 1):
+        b = (1.0 - xe) * b[..., :-1] + xe * b[..., 1:]
+    return b[..., 0]
 
 
 def _shaped_velocity(coef, order, x):
