@@ -28,7 +28,6 @@ from jaxflex import model as mdl
 from jaxflex.path import Path
 from jaxflex.profiles import Profile, profile_eval
 from jaxflex.robot import Robot, joint_motion
-from jaxflex.linearized import pose_coeffs
 from jaxflex.simulate import Series, low_mode_acceleration
 from jaxflex.trajectory import task_from_arc
 
@@ -50,22 +49,33 @@ def _error(robot: Robot, qa, qe, qad, qed, qadd, qedd):
     return e, ed, edd
 
 
+# classical RK4 as a loop over its four stages (one trace of the model instead of four): stage s
+# evaluates the model at x + A[s] h k_{s-1} with the motor state MOTOR[s] (start, middle, end of the
+# step) and adds B[s] h k_s
+_RK4_A = (0.0, 0.5, 0.5, 1.0)
+_RK4_B = (1.0 / 6.0, 1.0 / 3.0, 1.0 / 3.0, 1.0 / 6.0)
+_RK4_MOTOR = (0, 1, 1, 2)
+
+
 def _rk4(robot, h, x, stages):
-    """One RK4 step of the elastic state x = [q_e, q_e'] with motor motion at the three stage times.
+    """One RK4 step of the elastic state x = [q_e, q_e'] with motor motion ``stages`` (3, 3, 2):
+    (q_a, q_a', q_a'') at the start, middle and end of the step.
 
     Returns the new state and (q_e'', tau) at the start of the step (the first stage)."""
     ne = x.shape[0] // 2
-    (qa0, qad0, qadd0), (qa1, qad1, qadd1), (qa2, qad2, qadd2) = stages
+    motor = stages[np.asarray(_RK4_MOTOR)]
 
-    def f(xx, qa, qad, qadd):
+    def stage(carry, inp):
+        k_prev, acc = carry
+        a, b, (qa, qad, qadd) = inp
+        xx = x + a * h * k_prev
         qedd, tau = mdl.inverse_dynamics(robot, qa, xx[:ne], qad, xx[ne:], qadd)
-        return jnp.concatenate([xx[ne:], qedd]), tau
+        k = jnp.concatenate([xx[ne:], qedd])
+        return (k, acc + b * k), (qedd, tau)
 
-    k1, tau = f(x, qa0, qad0, qadd0)
-    k2, _ = f(x + 0.5 * h * k1, qa1, qad1, qadd1)
-    k3, _ = f(x + 0.5 * h * k2, qa1, qad1, qadd1)
-    k4, _ = f(x + h * k3, qa2, qad2, qadd2)
-    return x + h / 6.0 * (k1 + 2.0 * k2 + 2.0 * k3 + k4), (k1[ne:], tau)
+    zero = jnp.zeros_like(x)
+    (_, acc), (qedd, tau) = jax.lax.scan(stage, (zero, zero), (jnp.asarray(_RK4_A), jnp.asarray(_RK4_B), motor))
+    return x + h * acc, (qedd[0], tau[0])
 
 
 def _outputs(robot, qa, qad, qadd, x, qedd, tau):
@@ -124,51 +134,57 @@ def _batched(run, payload, samples, over_payload):
 
 
 def _reference(robot, samples, tf, dwell, n, nd):
+    """Motion (n steps) and dwell (nd steps) in one scan: one trace of the RK4 step."""
     h, hd = tf / n, dwell / nd
     starts, mids, ends = samples
-    qa_pick = starts[0][0]
-    qe0 = mdl.static_equilibrium(robot, qa_pick)
+    end = tuple(a[-1] for a in ends)
+    qa_pick, qa_place, zero = starts[0][0], end[0], jnp.zeros(2)
+    qe0, q_star = jax.vmap(lambda qa: mdl.static_equilibrium(robot, qa))(jnp.stack([qa_pick, qa_place]))
     x0 = jnp.concatenate([qe0, jnp.zeros_like(qe0)])
+    ne = qe0.shape[0]
+    hold = jnp.broadcast_to(jnp.stack([qa_place, zero, zero]), (nd, 3, 3, 2))    # motors hold the place
+    motion = jnp.stack([jnp.stack(v, axis=1) for v in (starts, mids, ends)], axis=1)       # (n, 3, 3, 2)
+    steps = jnp.concatenate([jnp.full(n, h), jnp.full(nd, hd)])
 
     def step(x, inp):
-        st, md, en = inp
-        x_new, (qedd, tau) = _rk4(robot, h, x, (st, md, en))
-        return x_new, _outputs(robot, *st, x, qedd, tau)
+        hk, st = inp
+        x_new, (qedd, tau) = _rk4(robot, hk, x, st)
+        return x_new, (x, _outputs(robot, *st[0], x, qedd, tau))
 
-    x_tf, ys = jax.lax.scan(step, x0, (starts, mids, ends))
-    ne = qe0.shape[0]
-    end = tuple(a[-1] for a in ends)
-    qedd_end, tau_end = mdl.inverse_dynamics(robot, end[0], x_tf[:ne], end[1], x_tf[ne:], end[2])
-    ys = jnp.concatenate([ys, _outputs(robot, *end, x_tf, qedd_end, tau_end)[None]])
+    x_end, (states, ys) = jax.lax.scan(step, x0, (steps, jnp.concatenate([motion, hold])))
+    x_tf = states[n]
 
-    # dwell: motors hold the place pose
-    qa_place = end[0]
-    zero = jnp.zeros(2)
-    hold = (qa_place, zero, zero)
+    def outputs_at(motor, x):
+        qedd, tau = mdl.inverse_dynamics(robot, motor[0], x[:ne], motor[1], x[ne:], motor[2])
+        return _outputs(robot, *motor, x, qedd, tau)
 
-    def dwell_step(x, _):
-        x_new, (qedd, tau) = _rk4(robot, hd, x, (hold, hold, hold))
-        return x_new, _outputs(robot, *hold, x, qedd, tau)
+    # the left limit at tf (motors still decelerating) and the end of the dwell
+    y_tf, y_end = jax.vmap(outputs_at)(jnp.stack([jnp.stack(end), jnp.stack([qa_place, zero, zero])]),
+                                       jnp.stack([x_tf, x_end]))
+    ys_motion = jnp.concatenate([ys[:n], y_tf[None]])
+    yd = jnp.concatenate([ys[n:], y_end[None]])
 
-    x_end, yd = jax.lax.scan(dwell_step, x_tf, None, length=nd)
-    qedd_e, tau_e = mdl.inverse_dynamics(robot, qa_place, x_end[:ne], zero, x_end[ne:], zero)
-    yd = jnp.concatenate([yd, _outputs(robot, *hold, x_end, qedd_e, tau_e)[None]])
-
-    q_star = mdl.static_equilibrium(robot, qa_place)
     e_static = mdl.ee_position(robot, qa_place, q_star) - mdl.ee_position(robot, qa_place, jnp.zeros(ne))
     v = lambda qe: mdl.potential(robot, mdl.full_coordinates(robot, qa_place, qe))
-    m_ee = mdl.reduced(robot, qa_place, x_tf[:ne], zero, x_tf[ne:]).mass[2:, 2:]
-    energy = 0.5 * x_tf[ne:] @ m_ee @ x_tf[ne:] + v(x_tf[:ne]) - v(q_star)
-    m_end = mdl.reduced(robot, qa_place, x_end[:ne], zero, x_end[ne:]).mass[2:, 2:]
-    energy_end = 0.5 * x_end[ne:] @ m_end @ x_end[ne:] + v(x_end[:ne]) - v(q_star)
-    return Series(t=jnp.arange(n + 1, dtype=float) * h, e=ys[:, 0], ed=ys[:, 1], edd=ys[:, 2], tau=ys[:, 3],
-                  t_dwell=tf + jnp.arange(nd + 1, dtype=float) * hd, e_dwell=yd[:, 0], ed_dwell=yd[:, 1],
-                  edd_dwell=yd[:, 2], tau_dwell=yd[:, 3], e_static=e_static, energy_tf=energy,
-                  energy_dwell=jnp.stack([energy, energy_end]),
-                  state_tf=x_tf, dt=h, dt_dwell=hd, edd_tf_low=_low_modes(robot, qa_place, q_star, x_tf))
+
+    def energy(x):
+        m_ee = mdl.reduced(robot, qa_place, x[:ne], zero, x[ne:]).mass[2:, 2:]
+        return 0.5 * x[ne:] @ m_ee @ x[ne:] + v(x[:ne]) - v(q_star)
+
+    e_tf_end = jax.vmap(energy)(jnp.stack([x_tf, x_end]))
+    return Series(t=jnp.arange(n + 1, dtype=float) * h, e=ys_motion[:, 0], ed=ys_motion[:, 1], edd=ys_motion[:, 2],
+                  tau=ys_motion[:, 3], t_dwell=tf + jnp.arange(nd + 1, dtype=float) * hd, e_dwell=yd[:, 0],
+                  ed_dwell=yd[:, 1], edd_dwell=yd[:, 2], tau_dwell=yd[:, 3], e_static=e_static,
+                  energy_tf=e_tf_end[0], energy_dwell=e_tf_end, state_tf=x_tf, dt=h, dt_dwell=hd,
+                  edd_tf_low=_low_modes(robot, qa_place, q_star, x_tf))
 
 
 def _low_modes(robot, qa_place, q_star, x_tf):
-    """Low-mode residual acceleration from the full model's linearization at the place pose."""
-    c = pose_coeffs(robot, qa_place, jnp.zeros(2), jnp.zeros(2))
-    return low_mode_acceleration(c.mass, c.k0, c.c0, c.jx, q_star, x_tf)
+    """Low-mode residual acceleration from the full model's linearization at the place pose (motors
+    at rest, about q_e = 0, as ``linearized.pose_coeffs`` at zero path speed)."""
+    ne = q_star.shape[0]
+    zero2, zero_e = jnp.zeros(2), jnp.zeros(ne)
+    jac = jax.jacfwd(lambda z: mdl.reduced(robot, qa_place, z[:ne], zero2, z[ne:]).force[2:])(jnp.zeros(2 * ne))
+    mass = mdl.reduced(robot, qa_place, zero_e, zero2, zero_e).mass[2:, 2:]
+    jx = jax.jacfwd(lambda x: mdl.ee_position(robot, qa_place, x))(zero_e)
+    return low_mode_acceleration(mass, jac[:, :ne], jac[:, ne:], jx, q_star, x_tf)
