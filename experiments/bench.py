@@ -14,8 +14,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxflex import checks
-from jaxflex.linearized import path_tables
-from jaxflex.optimize.loop import value_and_grad_fwd
 from jaxflex.path import make_path
 from jaxflex.robot import cycle_preset, robot_preset
 from jaxflex.sweep import PAPER_CASES, default_grid, run_sweep
@@ -38,61 +36,66 @@ def _peak_rss_mb() -> float:
     return rss / 1024.0 if sys.platform != "darwin" else rss / 2**20
 
 
-def _time_gradient(objective, x, repeats: int) -> dict:
-    """Compile and median run times of a scalar objective (value, aux) and of its reverse-mode
-    value and gradient (as the optimizer computes it) and forward-mode gradient."""
-    fwd = jax.jit(lambda p: objective(p)[0])
-    grad = jax.jit(jax.value_and_grad(objective, has_aux=True))
-    grad_fwd_mode = jax.jit(value_and_grad_fwd(objective))
+def _time_first_and_median(f, *args, repeats: int):
+    """(first call [s] (compilation included), median of ``repeats`` further calls [s], last result)."""
     t0 = time.perf_counter()
-    jax.block_until_ready(fwd(x))
-    c_fwd = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    jax.block_until_ready(grad(x))
-    c_grad = time.perf_counter() - t0
-    r_fwd = _median_time(fwd, x, repeats=repeats)
-    r_grad = _median_time(grad, x, repeats=repeats)
-    r_grad_fwd = _median_time(grad_fwd_mode, x, repeats=repeats)
-    n = int(sum(np.size(v) for v in jax.tree_util.tree_leaves(x)))
-    return {"parameters": n, "forward_compile_s": c_fwd, "forward_run_s": r_fwd, "grad_compile_s": c_grad,
-            "grad_run_s": r_grad, "grad_over_forward": r_grad / r_fwd, "forward_mode_grad_run_s": r_grad_fwd}
+    out = jax.block_until_ready(f(*args))
+    first = time.perf_counter() - t0
+    return first, _median_time(f, *args, repeats=repeats), out
 
 
-def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwell: float = 0.1) -> dict:
-    """Forward and gradient of the optimizer's residual objective (``jaxflex.optimize.objective``:
-    vibration energy at tf and mean-square dwell amplitude, log scale, torque penalty), second-order
-    fast model, one 6 kg model, tf = 0.43 s:
+def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwell: float = 0.1,
+                   quick: bool = False) -> dict:
+    """The optimizer's own programs on one 6 kg model, tf = 0.43 s (what ``jaxflex optimize --train
+    nominal`` runs at every step; second-order fast model, reverse mode):
 
-    - ``law``: w.r.t. the 6 coefficients of a shaped motion law on the Lamé path (tables fixed);
-    - ``design``: w.r.t. the 6 blend parameters (d, e, n of both corners) and the 6 law coefficients,
-      the linearization tables rebuilt from the path inside the differentiated function by
-      interpolation of the workspace tables (what ``jaxflex optimize`` differentiates; the
-      workspace build, once per model, is timed apart, compilation included).
-    """
+    - ``design``: value and gradient of the design objective w.r.t. the 6 blend parameters (d, e, n
+      of both corners) and the 6 law coefficients, the linearization tables rebuilt inside the
+      differentiated function from the workspace tables (their build, once per model, is timed
+      apart, compilation included), and the objective alone (forward) for the ratio;
+    - ``law`` (not with ``quick``): the same for the 6 coefficients of a shaped law on the Lamé path
+      (tables fixed).
+    Compile times are the first call minus a run."""
     from jaxflex.designs import design
-    from jaxflex.optimize.objective import Scales, encode, law_objective, objective, stack_robots
+    from jaxflex.optimize.objective import Scales, encode
+    from jaxflex.optimize.study import design_objective, law_objective_args, training_models
 
-    robot, cycle = robot_preset("default", payload=payload), cycle_preset()
-    path = make_path(cycle, "lame", 0.025)
+    robot, cycle = robot_preset("default"), cycle_preset()
     grid = default_grid(robot, [tf], dwell)
-    robots = stack_robots([robot])
-    tables = path_tables(robots, path)
-    scales = Scales(jnp.full(1, 1e-3), jnp.full(1, 1e-10), jnp.full(1, 90.0))
+    models = training_models(robot, [payload], "nominal")
+    # weights as the study passes them (the same pytree: the optimizer's own compiled program)
+    scales = Scales(jnp.full(1, 1e-3), jnp.full(1, 1e-10), jnp.full(1, 90.0), jnp.ones(1))
     coef = jnp.asarray([1.0, 1.2, 0.9, 1.0, 1.1, 0.95])
-    law = _time_gradient(lambda c: law_objective(c, tables, path.length, tf, dwell, grid, scales, robots=robots),
-                         coef, repeats)
-    params = encode(cycle, design(0.0245, 0.03, 3.2, coef, e2=0.035, n2=3.4))
     t0 = time.perf_counter()
-    ws = jax.block_until_ready(build_workspace(robots, cycle))
+    ws = jax.block_until_ready(build_workspace(models.robots, cycle))
     ws_s = time.perf_counter() - t0
-    full = _time_gradient(lambda p: objective(p, robots, cycle, tf, dwell, grid, scales, workspaces=ws), params,
-                          repeats)
-    full["workspace_build_s"] = ws_s
-    return {"law": law, "design": full, "steps": grid.steps + grid.dwell_steps}
+    f, args = design_objective(models, cycle, tf, dwell, grid, scales, ws)
+    params = encode(cycle, design(0.0245, 0.03, 3.2, coef, e2=0.035, n2=3.4))
+    out = {"design": _time_value_and_grad(f, params, args, repeats, not quick), "steps": grid.steps + grid.dwell_steps}
+    out["design"]["workspace_build_s"] = ws_s
+    if not quick:
+        path = make_path(cycle, "lame", 0.025)
+        f_law, args_law = law_objective_args(models, path, tf, dwell, grid, scales)
+        out["law"] = _time_value_and_grad(f_law, coef, args_law, repeats, True)
+    return out
 
 
-def compute(repeats: int = 5) -> dict:
-    """Time the 24-rollout sweep and the law/design gradients (median of ``repeats``); the JSON record."""
+def _time_value_and_grad(f, params, args, repeats: int, forward: bool) -> dict:
+    from jaxflex.optimize.loop import value_and_grad
+
+    first, run, _ = _time_first_and_median(lambda p: value_and_grad(p, args, f=f), params, repeats=repeats)
+    rec = {"parameters": int(sum(np.size(v) for v in jax.tree_util.tree_leaves(params))),
+           "grad_compile_s": max(first - run, 0.0), "grad_run_s": run}
+    if forward:
+        fwd = jax.jit(lambda p: f(p, *args)[0])
+        first, run_f, _ = _time_first_and_median(fwd, params, repeats=repeats)
+        rec.update(forward_compile_s=max(first - run_f, 0.0), forward_run_s=run_f, grad_over_forward=run / run_f)
+    return rec
+
+
+def compute(repeats: int = 5, quick: bool = False) -> dict:
+    """Time the 24-rollout sweep and the optimizer's gradients (median of ``repeats``); the JSON
+    record. ``quick``: the design gradient only, without the forward-only and law timings."""
     started = time.time()
     repeats = checks.count("repeats", repeats)
     robot, cycle = robot_preset("default"), cycle_preset()
@@ -107,24 +110,27 @@ def compute(repeats: int = 5) -> dict:
     print(f"  tables (3 blends x 2 payloads, compile included) {res.tables_s:.1f} s")
     print(f"  rollout program: compile {res.compile_s:.1f} s, run {res.run_s * 1e3:.0f} ms "
           f"({sweep['per_rollout_ms']:.1f} ms per rollout, {sweep['steps_per_s']:.3g} steps/s)", flush=True)
-    print("gradient of the residual objective (6 kg, tf 0.43 s, one model, reverse mode as the optimizer) ...",
-          flush=True)
-    grad = gradient_bench(repeats)
-    for key, what in (("law", "6 law coefficients, tables fixed"),
-                      ("design", "6 blend parameters + 6 law coefficients, tables rebuilt from the workspace")):
+    print("the optimizer's value and gradient (6 kg, tf 0.43 s, one model, reverse mode) ...", flush=True)
+    grad = gradient_bench(repeats, quick=quick)
+    for key, what in (("design", "6 blend parameters + 6 law coefficients, tables rebuilt from the workspace"),
+                      ("law", "6 law coefficients, tables fixed")):
+        if key not in grad:
+            continue
         g = grad[key]
-        print(f"  {what}: forward {g['forward_run_s'] * 1e3:.1f} ms, gradient {g['grad_run_s'] * 1e3:.1f} ms "
-              f"(x{g['grad_over_forward']:.2f}; forward mode {g['forward_mode_grad_run_s'] * 1e3:.1f} ms); "
-              f"compile {g['forward_compile_s']:.0f} s forward, {g['grad_compile_s']:.0f} s gradient", flush=True)
-    rec = {"sweep": sweep, "gradient": grad, "peak_rss_mb": _peak_rss_mb(),
-           "devices": [str(d) for d in jax.devices()], "provenance": provenance({"repeats": repeats}, started)}
+        fwd = (f"forward {g['forward_run_s'] * 1e3:.1f} ms (compile {g['forward_compile_s']:.0f} s), "
+               f"gradient x{g['grad_over_forward']:.2f}; " if "forward_run_s" in g else "")
+        print(f"  {what}: value and gradient {g['grad_run_s'] * 1e3:.1f} ms (compile {g['grad_compile_s']:.0f} s); "
+              + fwd, flush=True)
+    rec = {"sweep": sweep, "gradient": grad, "peak_rss_mb": _peak_rss_mb(), "quick": quick,
+           "devices": [str(d) for d in jax.devices()],
+           "provenance": provenance({"repeats": repeats, "quick": quick}, started)}
     print(f"peak memory {rec['peak_rss_mb']:.0f} MB")
     return rec
 
 
-def run(repeats: int = 5, json_path=None) -> dict:
+def run(repeats: int = 5, json_path=None, quick: bool = False) -> dict:
     """``jaxflex bench``: ``compute`` and, with ``json_path``, write its record there."""
-    rec = compute(repeats)
+    rec = compute(repeats, quick)
     if json_path:
         write_json(json_path, rec)
     return rec

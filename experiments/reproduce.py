@@ -45,7 +45,9 @@ def run(out: str = "results", quick: bool = False, vibration: bool = True, optim
                              make_figures=preset == "default")
         results[f"kinematics_{preset}"] = res
     sections.append(_kinematics_section(results, fig_dir, out))
-    release_compiled()       # between sections: bounded memory mappings (jaxflex.compiled)
+    # between sections: bounded memory mappings (jaxflex.compiled); a quick run keeps its programs
+    release = (lambda: None) if quick else release_compiled
+    release()
 
     print("== natural frequencies along the path (paper Section 4)", flush=True)
     pts = 9 if quick else 41
@@ -63,21 +65,21 @@ def run(out: str = "results", quick: bool = False, vibration: bool = True, optim
         "*First three natural frequencies along the path for 6 kg and 0.1 kg.*", "",
         "With the `table6` preset the first frequency at 6 kg is about 29 Hz instead of 58 Hz: no "
         "placement with Table 3's links reproduces both Table 6 and the frequencies (SPEC 2).", ""]))
-    release_compiled()
+    release()
 
     if with_vibration:
         print("== vibration study (paper Section 4: Tables 7-11, Fig. 12)", flush=True)
         vib = resumable(out / "vibration.json", key, lambda: vibration_study.compute(quick=quick), "vibration")
         results["vibration"] = vib
         sections.append(_vibration_section(vib, fig_dir, out))
-        release_compiled()
+        release()
         if not quick:
             print("== step convergence and full-model cross-check", flush=True)
             conv = {"dt": resumable(out / "convergence_dt.json", key,
                                     lambda: run_isolated(convergence.dt_study), "dt study")}
             conv["reference"] = resumable(out / "convergence_reference.json", key,
                                           lambda: run_isolated(convergence.reference_study), "full-model check")
-            release_compiled()
+            release()
             results["convergence"] = conv
             sections.append(_convergence_section(conv, vib))
 
@@ -115,25 +117,29 @@ def _optimization(out: Path, quick: bool, key: dict) -> dict:
 
     from . import optimize as opt
 
-    steps = 20 if quick else 100
-    # Full runs give each study a process of its own (memory mappings, see jaxflex.compiled); quick
-    # runs stay in this process and share its compiled gradient.
+    steps = 2 if quick else 100
+    # Full runs give each study a process of its own (memory mappings, see jaxflex.compiled). Quick
+    # runs (a smoke test of every step: 2 optimizer steps, nominal models) stay in this process and
+    # share its compiled programs: every study on the same grid and model count compiles once.
     isolated = (lambda fn, **kw: fn(**kw)) if quick else run_isolated
-    grid = default_grid(robot_preset("default"), [0.43], 0.1, dt=2e-4 if quick else None)
+    grid = default_grid(robot_preset("default"), [0.43], 0.1)
     res = {"cases": []}
     for payloads, tf, train, n_coef in OPT_CASES:
         name = "_".join(f"{m:g}" for m in payloads)
         d = out / f"optimize_{name}kg"
         rec = resumable(d / "study.json", key,
                         lambda: isolated(opt.compute, payloads=payloads, tf=tf, steps=steps, out=str(d),
-                                         grid=grid, train=train, n_coef=n_coef, verify=not quick),
+                                         grid=grid, train="nominal" if quick else train, n_coef=n_coef,
+                                         verify=not quick),
                         f"optimization {name} kg")
         res["cases"].append({"dir": d.relative_to(out).as_posix(), "text": opt.text(rec), "record": rec})
-        release_compiled()
+        if not quick:
+            release_compiled()
     tfs = (0.43, 0.37) if quick else (0.43, 0.40, 0.37, 0.34, 0.31)
     ct = resumable(out / "cycle_time" / "study.json", key,
                    lambda: isolated(opt.run_cycle_time, payload=6.0, tf_ref=0.43, tfs=tfs, steps=steps,
-                                    out=str(out / "cycle_time")), "cycle-time study")
+                                    train="nominal" if quick else "spanning", out=str(out / "cycle_time")),
+                   "cycle-time study")
     res["cycle_time"] = {"dir": "cycle_time", "text": opt.cycle_time_text(ct), "record": ct}
     return res
 

@@ -97,6 +97,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "residual objective; steps per second and peak memory.")
     p.add_argument("--json", metavar="PATH", help="also write the results as JSON to PATH")
     p.add_argument("--repeats", type=int, default=5, help="timed repeats (default: %(default)s)")
+    p.add_argument("--quick", action="store_true",
+                   help="the sweep and the design gradient only (no forward-only or law timings)")
 
     p = sub.add_parser("reproduce", help="the main job: every table and figure of the paper",
                        description="Reproduce the paper's tables and figures, ours beside the "
@@ -166,7 +168,7 @@ def main(argv=None) -> int:
         elif args.command == "bench":
             from jaxflex.experiments import bench
 
-            bench.run(repeats=args.repeats, json_path=args.json)
+            bench.run(repeats=args.repeats, json_path=args.json, quick=args.quick)
         elif args.command == "reproduce":
             from jaxflex.experiments import reproduce
 

@@ -17,6 +17,7 @@ would see).
 """
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 
 METRICS = ("max_torque_nm", "rms_acc_error", "max_deflection_mm", "residual_pos_mm", "residual_vel",
@@ -44,3 +45,13 @@ def metrics(series) -> dict:
         "dwell_residual_mm": 1e3 * jnp.max(_norm(series.e_dwell - series.e_static[None])),
         "residual_energy": series.energy_tf,
     }
+
+
+@jax.jit
+def batch_metrics(series) -> dict:
+    """``metrics`` of a batch of runs: every leaf of ``series`` with the same leading batch axes
+    (those of ``series.t`` but its last) -> dict name -> array of that batch shape. A small program of
+    its own, so the rollouts compile once whether or not their metrics are wanted."""
+    lead = series.t.shape[:-1]
+    flat = jax.tree_util.tree_map(lambda a: a.reshape((-1,) + a.shape[len(lead):]), series)
+    return {k: v.reshape(lead) for k, v in jax.vmap(metrics)(flat).items()}

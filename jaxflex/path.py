@@ -70,8 +70,8 @@ def make_cycle(pick, place, h=0.025, lift=(0.0, 1.0)) -> Cycle:
         raise ValueError(f"lift must be a unit vector, got {lift.tolist()}")
     if abs(np.dot(lift, place - pick)) > 1e-9 * l:
         raise ValueError("lift direction must be perpendicular to the traverse (place - pick)")
-    return Cycle(pick=jnp.asarray(pick), place=jnp.asarray(place), h=jnp.asarray(float(h)),
-                 lift=jnp.asarray(lift))
+    put = lambda v: jax.device_put(np.asarray(v, dtype=np.float64))       # no device computation
+    return Cycle(pick=put(pick), place=put(place), h=put(float(h)), lift=put(lift))
 
 
 @jax.tree_util.register_dataclass

@@ -68,7 +68,8 @@ class Robot:
     def replace(self, **changes) -> "Robot":
         """Copy with fields replaced (values are converted to float64 arrays)."""
         static = {"modes", "assembly", "n_bending", "n_axial"}
-        conv = {k: (v if k in static else jnp.asarray(v, dtype=float)) for k, v in changes.items()}
+        conv = {k: (v if k in static else jnp.asarray(v, dtype=float) if isinstance(v, jax.Array)
+                    else jax.device_put(np.asarray(v, dtype=np.float64))) for k, v in changes.items()}
         out = dataclasses.replace(self, **conv)
         check_robot(out)
         return out
@@ -111,24 +112,19 @@ def make_robot(a=0.10, modes=(1, -1), *, l1=0.24, l2=0.38079, diameter=0.035, rh
     for name, k in (("n_bending", n_bending), ("n_axial", n_axial)):
         if int(k) != k or k < 1:
             raise ValueError(f"{name} (number of assumed modes) must be a positive integer, got {k}")
+    # host values first (numpy: building a robot compiles nothing), then device arrays
+    arr = lambda v: jax.device_put(np.asarray(v, dtype=np.float64))
     robot = Robot(
-        l1=jnp.asarray(l1, dtype=float), l2=jnp.asarray(l2, dtype=float),
-        diameter=jnp.asarray(diameter, dtype=float), rho=jnp.asarray(rho, dtype=float),
-        young=jnp.asarray(young, dtype=float), a=jnp.asarray(a, dtype=float),
-        payload=jnp.asarray(payload, dtype=float), rotor_inertia=jnp.asarray(rotor_inertia, dtype=float),
-        gravity=jnp.asarray(gravity, dtype=float), damping=jnp.asarray(damping, dtype=float),
+        l1=arr(l1), l2=arr(l2), diameter=arr(diameter), rho=arr(rho), young=arr(young), a=arr(a),
+        payload=arr(payload), rotor_inertia=arr(rotor_inertia), gravity=arr(gravity), damping=arr(damping),
         modes=modes, assembly=1, n_bending=int(n_bending), n_axial=int(n_axial))
     check_robot(robot)
     if assembly is None:
         if reference_point is None:
             raise ValueError("give either assembly (+1/-1) or a reference_point to deduce it")
-        check_reachable(robot, np.asarray(reference_point, dtype=float)[None], "reference point",
-                        assembly=False)
-        q = np.asarray(igm(robot, jnp.asarray(reference_point, dtype=float)))
-        elbows = np.asarray(robot.bases) + float(robot.l1) * np.stack([np.cos(q), np.sin(q)], -1)
-        u, w = elbows[1] - elbows[0], np.asarray(reference_point) - elbows[0]
-        cross = u[0] * w[1] - u[1] * w[0]
-        assembly = 1 if cross > 0 else -1
+        point = np.asarray(reference_point, dtype=float)[None]
+        check_reachable(robot, point, "reference point", assembly=False)
+        assembly = 1 if pose_report(robot, point)["distal_sine"][0] > 0 else -1
     if assembly not in (1, -1):
         raise ValueError(f"assembly mode must be +1 or -1, got {assembly}")
     return dataclasses.replace(robot, assembly=int(assembly))
@@ -235,11 +231,17 @@ def joint_motion(robot: Robot, x, xd, xdd):
 # eager reachability / singularity checks (numpy; run before any compilation)
 
 
+def _host_bases(robot: Robot) -> np.ndarray:
+    """(2, 2) motor positions [m] as numpy (no device computation)."""
+    a = float(robot.a)
+    return np.array([[-a, 0.0], [a, 0.0]])
+
+
 def pose_report(robot: Robot, points) -> dict:
     """Numpy diagnostics of poses (N, 2): per-arm acos argument c, distal-link crossing sine."""
     pts = np.atleast_2d(np.asarray(points, dtype=float))
     l1, l2 = float(robot.l1), float(robot.l2)
-    bases = np.asarray(robot.bases)
+    bases = _host_bases(robot)
     cs = []
     q = []
     for i in range(2):
@@ -272,7 +274,7 @@ def check_reachable(robot: Robot, points, what: str = "pose", margin: float = 1e
         raise ValueError(f"{what}: non-finite coordinates")
     rep = pose_report(robot, pts)
     l1, l2 = float(robot.l1), float(robot.l2)
-    bases = np.asarray(robot.bases)
+    bases = _host_bases(robot)
     for k, p in enumerate(pts):
         for i in range(2):
             c = rep["c"][k, i]

@@ -2,7 +2,7 @@
 call, metrics included; optional sharding of large design batches over devices.
 
 Tables (linearization coefficients along each path, per payload) are built first; then all
-rollouts (blend x profile x case) and their metrics run in one jitted call.
+rollouts (blend x profile x case) run in one jitted call, and their metrics in a small one.
 """
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ from jaxflex import checks
 from jaxflex.blends import BLENDS
 from jaxflex.expm import squarings_for
 from jaxflex.linearized import Tables, coeffs_many, table_poses
-from jaxflex.metrics import METRICS, metrics
+from jaxflex.metrics import METRICS, batch_metrics
 from jaxflex.path import check_path_args, make_path
 from jaxflex.profiles import PROFILES, make_profile
 from jaxflex.robot import Robot, check_cycle_reachable
@@ -73,8 +73,9 @@ def _coeffs(robot, payloads, qa, qa1, qa2):
     return jax.tree_util.tree_map(lambda v: v.reshape(v.shape[:1] + shape + v.shape[2:]), values)
 
 
-def _rollouts(values, breaks, lengths, tfs, dwell, robots, profiles, grid, with_series):
-    """All rollouts and metrics: tables (C, B, ...) -> metrics (B, P, C) and optional series.
+def _rollouts(values, breaks, lengths, tfs, dwell, robots, profiles, grid):
+    """All rollouts: tables (C, B, ...) -> series with leading axes (B, P, C) (their metrics come
+    from ``metrics.batch_metrics``: the rollout program is the same with or without series).
 
     The motion samples of every law are computed first (a cheap static loop over the laws) and
     stacked, so that a single rollout body, vmapped over blend x law x case, serves all laws: one
@@ -93,12 +94,15 @@ def _rollouts(values, breaks, lengths, tfs, dwell, robots, profiles, grid, with_
     per_case = jax.vmap(one, in_axes=(0, None, 0, 0, 0))                           # (C)
     per_law = jax.vmap(per_case, in_axes=(None, None, 0, None, None))              # (P)
     per_blend = jax.vmap(per_law, in_axes=(1, 0, 0, None, None))                  # (B)
-    series = per_blend(values, breaks, samples, tfs, robots)
-    mets = jax.vmap(jax.vmap(jax.vmap(metrics)))(series)
-    return mets, (series if with_series else None)
+    return per_blend(values, breaks, samples, tfs, robots)
 
 
-_rollouts_jit = jax.jit(_rollouts, static_argnames=("profiles", "grid", "with_series"))
+_rollouts_jit = jax.jit(_rollouts, static_argnames=("profiles", "grid"))
+
+
+def _rollouts_and_metrics(*args, **kw):
+    series = _rollouts_jit(*args, **kw)
+    return batch_metrics(series), series
 
 
 def _stacked_tables(robot, cycle, payloads, blends, d, e, n):
@@ -150,7 +154,7 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES, *, d=0.0
 
     Three jitted stages: the table poses per blend family, the linearization coefficients for every
     blend and payload (one compiled function shared by all blends), and one program with every
-    rollout and its metrics (vmapped over blend, case; static loop over the motion laws).
+    rollout (vmapped over blend, law, case), then the metrics (``metrics.batch_metrics``).
     Timing: ``tables_s`` is the wall time of the first two stages (compilation included; the
     persistent compilation cache makes it short after the first run on a machine); ``compile_s``
     the rollout program's first call minus one run; ``run_s`` the median of ``repeats`` runs of
@@ -189,19 +193,20 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES, *, d=0.0
     if second_order:
         robots = jax.vmap(lambda m: robot.replace(payload=m))(payloads)
     args = (values, breaks, lengths, tfs, jnp.asarray(dwell, dtype=float), robots)
-    kw = dict(profiles=profiles, grid=grid, with_series=with_series)
+    kw = dict(profiles=profiles, grid=grid)
     t0 = time.perf_counter()
-    out = jax.block_until_ready(_rollouts_jit(*args, **kw))
+    out = jax.block_until_ready(_rollouts_and_metrics(*args, **kw))
     first = time.perf_counter() - t0
     runs = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        out = jax.block_until_ready(_rollouts_jit(*args, **kw))
+        out = jax.block_until_ready(_rollouts_and_metrics(*args, **kw))
         runs.append(time.perf_counter() - t0)
     run_s = float(np.median(runs))
     mets = {k: np.asarray(v) for k, v in out[0].items()}
     _check_finite(mets, blends, profiles, cases)
-    return SweepResult(mets, out[1], blends, profiles, cases, grid, max(first - run_s, 0.0), run_s, tables_s)
+    return SweepResult(mets, out[1] if with_series else None, blends, profiles, cases, grid, max(first - run_s, 0.0),
+                       run_s, tables_s)
 
 
 def _check_finite(mets, blends, profiles, cases):

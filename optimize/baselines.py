@@ -20,7 +20,7 @@ import numpy as np
 
 from jaxflex import model as mdl
 from jaxflex.linearized import path_tables
-from jaxflex.metrics import metrics
+from jaxflex.metrics import batch_metrics
 from jaxflex.path import Cycle, Path
 from jaxflex.profiles import Profile, zv, zvd
 from jaxflex.robot import Robot, igm
@@ -115,9 +115,9 @@ def model_set(robot: Robot, payloads: Sequence[float], *, stiffness=(1.0,), payl
     return ModelSet(stacked, tuple(labels))
 
 
-@functools.partial(jax.jit, static_argnames=("grid",))
 def _law_metrics(tables, robots, samples, tf, dwell, grid):
-    return jax.vmap(lambda tab, r: metrics(rollout(tab, samples, tf, dwell, grid, r)))(tables, robots)
+    """Metrics of the runs of ``_law_series`` (the same rollout program and a small metrics one)."""
+    return batch_metrics(_law_series(tables, robots, samples, tf, dwell, grid))
 
 
 @functools.partial(jax.jit, static_argnames=("grid",))

@@ -102,15 +102,29 @@ def _value_and_grad(f: Callable, args, mode: str):
 
 
 @functools.partial(jax.jit, static_argnames=("f", "mode"))
-def _update(params, state, args, learning_rate, *, f, mode):
-    """One Adam step. Module level with f static: calls with the same f (the same object) and new
-    ``args`` or learning-rate values of the same shapes reuse one compilation (e.g. a sweep over tf
-    or payloads)."""
-    (value, aux), grad = _value_and_grad(f, args, mode)(params)
+def value_and_grad(params, args, *, f, mode: str = "reverse"):
+    """((value, aux), gradient) of f(params, *args) -> (value, aux): the program the optimizer runs
+    at every step. Module level with f static: calls with the same f (the same object) and new
+    ``args`` values of the same shapes reuse one compilation (e.g. a sweep over tf or payloads, a
+    benchmark or a gradient check of the optimizer's own gradient)."""
+    return _value_and_grad(f, args, mode)(params)
+
+
+@jax.jit
+def _adam_step(params, state, grad, learning_rate):
+    """One Adam update from a gradient (a small program shared by every objective of the same
+    parameter shapes); the traced learning rate scales the direction."""
     with jax.numpy_dtype_promotion("standard"):     # optax mixes Python floats and int32 counts
         direction, state = _optimizer().update(grad, state, params)
     step = jax.tree_util.tree_map(lambda u: -learning_rate * u, direction)
-    return optax.apply_updates(params, step), state, value, aux
+    return optax.apply_updates(params, step), state
+
+
+def _update(params, state, args, learning_rate, *, f, mode):
+    """One optimizer step: the objective's value and gradient, then Adam."""
+    (value, aux), grad = value_and_grad(params, args, f=f, mode=mode)
+    new_params, state = _adam_step(params, state, grad, learning_rate)
+    return new_params, state, value, aux
 
 
 def minimize(f: Callable, params0, *, args: tuple = (), steps: int = 100, learning_rate: float = 0.05,
@@ -173,6 +187,6 @@ def minimize(f: Callable, params0, *, args: tuple = (), steps: int = 100, learni
     if ckpt:
         _save(ckpt, params, state, history, times, step, best, best_value)
     if best_aux is None:                       # resumed at the end: evaluate the best once
-        (best_value, best_aux), _ = jax.jit(_value_and_grad(f, args, mode))(best)
+        (best_value, best_aux), _ = value_and_grad(best, args, f=f, mode=mode)
         best_value = float(best_value)
     return OptResult(best, best_value, best_aux, history, step, stopped, time.perf_counter() - started, times)

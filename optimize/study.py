@@ -34,6 +34,7 @@ import numpy as np
 from jaxflex import checks
 from jaxflex.blends import BLENDS
 from jaxflex.designs import Design, design, design_path
+from jaxflex.linearized import path_tables
 from jaxflex.path import Cycle, Path, make_path
 from jaxflex.profiles import PROFILES, Profile, make_profile, shaped
 from jaxflex.robot import Robot, check_cycle_reachable
@@ -327,14 +328,22 @@ def train_design(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid: 
     or passed as ``workspaces``): the gradient compiles in about a third of the time it takes
     through the model's table build."""
     _check_training(tf, dwell, steps, learning_rate)
+    f, args = design_objective(models, cycle, tf, dwell, grid, scales, workspaces)
+    return minimize(f, init, args=args, steps=steps, learning_rate=learning_rate, checkpoint=checkpoint,
+                    patience=patience, progress=progress, label=label, decay=True, monitor=_dwell)
+
+
+def design_objective(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid: Grid, scales: Scales,
+                     workspaces: Workspace | None = None) -> tuple:
+    """(f, args): the design objective and its traced arguments exactly as ``train_design`` hands them
+    to the optimizer, so that ``loop.value_and_grad(params, args, f=f)`` is the optimizer's own value
+    and gradient (one compiled program per grid and number of models)."""
     check_grid(grid)
-    f = _design_objective(grid)
     if workspaces is None:
         workspaces = build_workspace(models.robots, cycle)
     args = (models.robots, cycle, jnp.asarray(tf, dtype=float), jnp.asarray(dwell, dtype=float), scales,
             workspaces)
-    return minimize(f, init, args=args, steps=steps, learning_rate=learning_rate, checkpoint=checkpoint,
-                    patience=patience, progress=progress, label=label, decay=True, monitor=_dwell)
+    return _design_objective(grid), args
 
 
 def train_law(train: LawEvaluator, path: Path, tf: float, scales: Scales, init, *, steps: int = 100,
@@ -343,12 +352,21 @@ def train_law(train: LawEvaluator, path: Path, tf: float, scales: Scales, init, 
     """Optimize the shaped-law coefficients (start ``init`` (m + 1,)) on the training models of
     ``train`` (its path) at motion time tf [s] with the normalization ``scales``."""
     _check_training(tf, train.dwell, steps, learning_rate)
-    f = _law_objective(train.grid)
-    args = (train.tables, jnp.asarray(path.length), jnp.asarray(tf, dtype=float),
-            jnp.asarray(train.dwell, dtype=float), scales, train.models.robots)
+    f, args = law_objective_args(train.models, path, tf, train.dwell, train.grid, scales, train.tables)
     return minimize(f, jnp.asarray(init, dtype=float), args=args, steps=steps, learning_rate=learning_rate,
                     checkpoint=checkpoint, patience=patience, progress=progress, label=label, decay=True,
                     monitor=_dwell)
+
+
+def law_objective_args(models: ModelSet, path: Path, tf: float, dwell: float, grid: Grid, scales: Scales,
+                       tables=None) -> tuple:
+    """(f, args): the law objective on a fixed path and its traced arguments as ``train_law`` hands
+    them to the optimizer (``tables``: the path's tables for the models, built here if None)."""
+    check_grid(grid)
+    tables = path_tables(models.robots, path) if tables is None else tables
+    args = (tables, jnp.asarray(path.length), jnp.asarray(tf, dtype=float), jnp.asarray(dwell, dtype=float),
+            scales, models.robots)
+    return _law_objective(grid), args
 
 
 def _check_training(tf, dwell, steps, learning_rate):

@@ -83,12 +83,12 @@ def test_minimize_is_deterministic_and_resumes_from_a_checkpoint(tmp_path):
 def test_minimize_reuses_its_compilation_for_new_argument_values():
     """The same objective with new traced ``args`` (e.g. another tf or payload set) compiles once,
     and each run converges to its own minimum."""
-    from jaxflex.optimize.loop import _update
+    from jaxflex.optimize.loop import value_and_grad
 
     def f(p, target):
         return jnp.sum((p - target) ** 2), {}
 
-    before = _update._cache_size()
+    before = value_and_grad._cache_size()
     a = minimize(f, jnp.zeros(2), args=(jnp.asarray([1.0, 2.0]),), steps=300, learning_rate=0.1,
                  progress=False, patience=300)
     b = minimize(f, jnp.zeros(2), args=(jnp.asarray([-1.0, 0.5]),), steps=300, learning_rate=0.1,
@@ -96,7 +96,7 @@ def test_minimize_reuses_its_compilation_for_new_argument_values():
     # the schedule (warm-up, then cosine decay) and another rate and length: still the same program
     minimize(f, jnp.zeros(2), args=(jnp.asarray([0.0, 0.0]),), steps=30, learning_rate=0.02, progress=False,
              patience=300, decay=True)
-    assert _update._cache_size() == before + 1
+    assert value_and_grad._cache_size() == before + 1
     np.testing.assert_allclose(a.params, [1.0, 2.0], atol=1e-2)     # Adam at lr 0.1: within 1e-2
     np.testing.assert_allclose(b.params, [-1.0, 0.5], atol=1e-2)
 
@@ -106,6 +106,45 @@ def test_minimize_does_not_stop_early_on_negative_objectives():
     f = lambda p: (jnp.log(1e-6 + jnp.sum((p - 3.0) ** 2)), {})
     r = minimize(f, jnp.zeros(2), steps=400, learning_rate=0.05, progress=False, patience=20)
     assert r.value < -5.0, (r.value, r.steps_run, r.stopped)        # |p - 3| < 0.06
+
+
+def test_the_optimizers_own_gradient_matches_central_differences():
+    """The gradient the optimizer steps with (``loop.value_and_grad`` on the design objective exactly
+    as ``train_design`` builds it: reverse mode, second-order model, tables rebuilt from the workspace,
+    default grid, the nominal 6 kg model, torque penalty active) w.r.t. every design parameter - the
+    six blend parameters (d, e, n of both corners, asymmetric) and the six law coefficients - against
+    central differences of the same objective. FD step 1e-5 on O(1) parameters (the workspace
+    tables are local bicubics, C0 across their 5 mm cells: a 1e-4 step can straddle a cell boundary
+    of some path node and errs by up to 5e-5, while at 1e-5 the rounding noise of the rollout,
+    ~1e-9 of the objective, reaches 5e-5 on the smallest components): relative error < 1e-4, or
+    1e-3 of the largest component for the near-zero ones. A wrong derivative rule anywhere in the
+    chain (custom JVPs, the remainder, the table rebuild) shows as errors of percent. The program is the one ``jaxflex optimize --train
+    nominal`` compiles, so the command and this check share it."""
+    from jaxflex.optimize.loop import value_and_grad
+    from jaxflex.optimize.study import design_objective, training_models
+
+    robot, cycle = robot_preset("default"), cycle_preset()
+    models = training_models(robot, [6.0], "nominal")
+    grid = default_grid(robot, [TF], DWELL)
+    p0 = encode(cycle, design(d=0.02, e=0.03, n=3.5, coef=[1.0, 1.2, 0.9, 1.1, 0.8, 1.05], d2=0.022, e2=0.04,
+                              n2=3.2))
+    f, args = design_objective(models, cycle, TF, DWELL, grid, Scales(jnp.full(1, 1e-3), jnp.full(1, 1e-10),
+                                                                      jnp.full(1, jnp.inf), jnp.ones(1)))
+    torque = float(value_and_grad(p0, args, f=f)[0][1]["torque"][0])
+    # a bound 1 % below the peak torque: the penalty term is on, and its size comparable to the rest
+    scales = Scales(jnp.full(1, 1e-3), jnp.full(1, 1e-10), jnp.full(1, 0.99 * torque), jnp.ones(1))
+    f, args = design_objective(models, cycle, TF, DWELL, grid, scales, args[-1])
+    (value, aux), grad = value_and_grad(p0, args, f=f)
+    value_of = lambda p: float(value_and_grad(p, args, f=f)[0][0])
+    for field in ("blend", "coef"):
+        x = getattr(p0, field)
+        for i in range(x.shape[0]):
+            h = 1e-5
+            e = jnp.zeros_like(x).at[i].set(h)
+            fd = (value_of(p0._replace(**{field: x + e})) - value_of(p0._replace(**{field: x - e}))) / (2 * h)
+            g = float(getattr(grad, field)[i])
+            assert abs(g - fd) <= 1e-4 * max(abs(fd), 1e-3 * float(jnp.abs(getattr(grad, field)).max())), \
+                (field, i, g, fd)
 
 
 @pytest.mark.slow

@@ -72,3 +72,101 @@ def test_bad_profiles():
         time_grid(0.4, 0)
     with pytest.raises(ValueError, match="unknown motion profile"):
         make_profile("s_curve")
+
+
+# --------------------------------------------------------------- every public entry point that compiles
+
+
+@pytest.fixture
+def compilations():
+    """Counts XLA compilations (``jax.monitoring``) while the test runs."""
+    from jax import monitoring
+
+    count = [0]
+
+    def listener(event, duration, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            count[0] += 1
+
+    monitoring.register_event_duration_secs_listener(listener)
+    yield count
+    monitoring.unregister_event_duration_listener(listener)
+
+
+def _entry_points():
+    """(name, callable taking keyword overrides, {argument: bad values}) for every public entry
+    point that compiles."""
+    from jaxflex.designs import design, sweep_designs
+    from jaxflex.experiments import bench, reproduce
+    from jaxflex.optimize.baselines import model_set
+    from jaxflex.optimize.cycle_time import cycle_time_study
+    from jaxflex.optimize.objective import Scales, encode
+    from jaxflex.optimize.study import optimize_design, train_design, train_law
+    from jaxflex.simulate import Grid
+    from jaxflex.sweep import Case, run_sweep
+
+    grid = Grid(coarse=96, fine=4, dwell_steps=100)
+    bad_times = [0.0, -0.43, float("nan"), float("inf")]
+    bad_payloads = [-6.0, float("nan"), float("inf")]
+    one = jnp.ones(1)
+    scales = Scales(one, one, one)
+    models = model_set(ROBOT, [6.0])
+    xs = jax_tree_stack([design(coef=np.ones(4))] * 2)
+    params = encode(CYCLE, design(coef=np.ones(4)))
+
+    def sweep(tf=0.43, payload=6.0, **kw):
+        return run_sweep(ROBOT, CYCLE, [Case(payload, tf)], **kw)
+
+    class _Evaluator:            # what train_law reads of its evaluator (no tables built)
+        def __init__(self, dwell=0.1):
+            self.models, self.grid, self.dwell, self.tables = models, grid, dwell, None
+
+    return [
+        ("run_sweep", sweep, {"tf": bad_times, "payload": bad_payloads, "dwell": bad_times, "dt": bad_times,
+                              "repeats": [0, -1, 1.5], "profiles": [("poly5",)], "blends": [("spline",)]}),
+        ("sweep_designs", lambda **kw: sweep_designs(ROBOT, CYCLE, xs, **{"tf": 0.43, "dwell": 0.1, "grid": grid, **kw}),
+         {"tf": bad_times, "dwell": bad_times, "chunk": [0, -4], "blend": ["spline"]}),
+        ("optimize_design", lambda **kw: optimize_design(ROBOT, CYCLE, **kw),
+         {"tf": bad_times, "dwell": bad_times, "payloads": [(0.0,), (-6.0,), (float("nan"),), (float("inf"),), ()],
+          "steps": [-1, 2.5, float("nan")], "learning_rate": bad_times, "n_coef": [0, -2],
+          "train": ["everything"]}),
+        ("train_design", lambda **kw: train_design(models, CYCLE, **{"tf": 0.43, "dwell": 0.1, "grid": grid,
+                                                                      "scales": scales, "init": params, **kw}),
+         {"tf": bad_times, "dwell": bad_times, "steps": [-1, 0.5], "learning_rate": bad_times}),
+        ("train_law", lambda dwell=0.1, **kw: train_law(_Evaluator(dwell), None, **{"tf": 0.43, "scales": scales,
+                                                                                      "init": np.ones(4), **kw}),
+         {"tf": bad_times, "dwell": bad_times, "steps": [-1], "learning_rate": bad_times}),
+        ("cycle_time_study", lambda **kw: cycle_time_study(ROBOT, CYCLE, **kw),
+         {"payload": [0.0, *bad_payloads], "tf_ref": bad_times, "tfs": [(0.43, 0.0), (float("nan"),), ()],
+          "steps": [-1], "learning_rate": bad_times, "train": ["all"]}),
+        ("bench", lambda **kw: bench.compute(**kw), {"repeats": [0, -1, 2.5]}),
+        ("reproduce", lambda **kw: reproduce.run(**kw), {"out": ["", None]}),
+    ]
+
+
+def jax_tree_stack(items):
+    import jax
+
+    return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *items)
+
+
+def _cases():
+    for name, _, bad in _entry_points():
+        for arg, values in bad.items():
+            for v in values:
+                yield pytest.param(name, arg, v, id=f"{name}-{arg}={v!r}")
+
+
+@pytest.mark.parametrize("name, arg, value", list(_cases()))
+def test_every_entry_point_rejects_bad_values_naming_them_before_compiling(name, arg, value, compilations):
+    """SPEC 8: zero, negative, NaN or infinite times, steps, rates and payloads, and unknown names,
+    are rejected with a ValueError that names the argument, and nothing is compiled first."""
+    call = next(fn for n, fn, _ in _entry_points() if n == name)
+    compilations[0] = 0
+    with pytest.raises(ValueError) as err:
+        call(**{arg: value})
+    text = str(err.value)
+    expected = {"payloads": "payload", "blends": "blend", "profiles": "profile", "train": "training set",
+                "tf_ref": "tf", "tfs": "tfs", "blend": "blend"}.get(arg, arg)
+    assert expected in text, (name, arg, value, text)
+    assert compilations[0] == 0, f"{name}({arg}={value!r}) compiled {compilations[0]} programs before rejecting it"

@@ -1,0 +1,207 @@
+"""Every subcommand end to end through the console entry point (``jaxflex.cli:main``, what the
+``jaxflex`` script calls), on small settings: exit code, the JSON keys and values, the files written.
+
+The commands run in this process, in order, so that they share their compiled programs as they do
+in one session (the nominal 6 kg model on the default 0.43 s grid: one design gradient, one law
+gradient, one evaluation program for the optimization commands, the bench and the quick reproduce).
+An unexpected exception in a command fails its test: ``main`` turns it into one line on stderr and
+exit status 1, and ``_run`` asserts status 0 and shows that line.
+"""
+import csv
+import json
+import math
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from jax import monitoring
+
+from jaxflex.cli import main
+from jaxflex.metrics import METRICS
+
+OPT = ["--payload", "6", "--tf", "0.43", "--steps", "2", "--train", "nominal"]
+
+
+def _run(args, capsys, status=0):
+    code = main([str(a) for a in args])
+    out, err = capsys.readouterr()
+    assert code == status, f"jaxflex {' '.join(map(str, args))} exited {code}: {err.strip()[-2000:]}"
+    return out, err
+
+
+def _finite_numbers(tree):
+    if isinstance(tree, dict):
+        for v in tree.values():
+            yield from _finite_numbers(v)
+    elif isinstance(tree, (list, tuple)):
+        for v in tree:
+            yield from _finite_numbers(v)
+    elif isinstance(tree, float):
+        yield tree
+
+
+def test_console_script_runs_and_every_command_has_help():
+    exe = shutil.which("jaxflex") or str(Path(sys.executable).parent / "jaxflex")
+    for cmd in ([], ["kinematics"], ["modes"], ["sweep"], ["optimize"], ["bench"], ["reproduce"]):
+        proc = subprocess.run([exe, *cmd, "--help"], capture_output=True, text=True, timeout=120)
+        assert proc.returncode == 0, proc.stderr
+        assert "usage: jaxflex" in proc.stdout
+
+
+def test_sweep_command(tmp_path, capsys):
+    """The 12 combinations, 6 kg, tf 0.43 s, default step: SPEC 7 keys, every SPEC 5 metric per run,
+    finite and physically sized, and the table with every metric."""
+    path = tmp_path / "w.json"
+    out, _ = _run(["sweep", "--payload", "6", "--tf", "0.43", "--json", path], capsys)
+    rec = json.loads(path.read_text())
+    assert {"payload", "tf", "dt", "results", "timing"} <= set(rec)
+    assert rec["payload"] == 6.0 and rec["tf"] == 0.43 and 0 < rec["dt"] <= 1e-4
+    assert {"compile_s", "run_s"} <= set(rec["timing"])
+    assert {(r["blend"], r["profile"]) for r in rec["results"]} == {
+        (b, p) for b in ("lame", "clothoid", "polar") for p in ("poly7", "bang_bang", "trap_1_4", "trap_1_8")}
+    for r in rec["results"]:
+        assert set(METRICS) <= set(r)
+        assert all(math.isfinite(r[m]) and r[m] > 0 for m in METRICS), r
+        assert 40 < r["max_torque_nm"] < 400 and 1e-4 < r["dwell_residual_mm"] < 1.0, r
+    assert "|e''(tf)| < 1 kHz" in out and "dwell" in out
+
+
+def _read_csv(path):
+    with open(path) as f:
+        rows = list(csv.reader(f))
+    return rows[0], np.asarray(rows[1:], dtype=float)
+
+
+def test_optimize_command_writes_its_outputs_and_resumes(tmp_path, capsys):
+    """Two optimizer steps on the nominal model with --out: the study JSON, trajectory.csv (t, x, y,
+    q1, q2 at 10 kHz over [0, tf], from the pick to the place point, q the IGM of (x, y)), the
+    figures and the checkpoint; a rerun resumes from the checkpoint and reports the same design."""
+    from jaxflex.robot import cycle_preset, igm, robot_preset
+
+    out_dir, j1, j2 = tmp_path / "opt", tmp_path / "o1.json", tmp_path / "o2.json"
+    _run(["optimize", *OPT, "--out", out_dir, "--json", j1], capsys)
+    rec = json.loads(j1.read_text())
+    for f in ("optimize.json", "trajectory.csv", "checkpoint.npz", "optimized_law.png", "error_series.png"):
+        assert (out_dir / f).is_file() and (out_dir / f).stat().st_size > 100, f
+    assert json.loads((out_dir / "optimize.json").read_text())["laws"] == rec["laws"]
+    assert rec["steps_run"] == 2 and len(rec["history"]) == 2 and rec["payloads"] == [6.0]
+    assert rec["design"]["path"]["free"] is True and len(rec["design"]["path"]["corners"]) == 2
+    laws = rec["laws"]
+    assert "optimized" in laws and any(k.endswith("(best paper)") for k in laws)
+    assert any(k.endswith("+ZVD") for k in laws) and any(k.endswith("/ruckig") for k in laws)
+    for v in laws.values():
+        assert len(v["perturbed_mm"]) == 9 and len(v["damped_mm"]) == 1
+        assert all(x > 0 and math.isfinite(x) for x in v["dwell_residual_mm"] + v["perturbed_mm"])
+    assert all(math.isfinite(x) for x in _finite_numbers(rec))
+    head, rows = _read_csv(out_dir / "trajectory.csv")
+    assert head == ["t", "x", "y", "q1", "q2"]
+    assert rows.shape == (4301, 5)
+    np.testing.assert_allclose(np.diff(rows[:, 0]), 1e-4, rtol=1e-9)
+    cycle, robot = cycle_preset(), robot_preset("default")
+    np.testing.assert_allclose(rows[0, 1:3], cycle.pick, atol=1e-12)
+    np.testing.assert_allclose(rows[-1, 1:3], cycle.place, atol=1e-12)
+    for i in (0, 1234, 4300):
+        np.testing.assert_allclose(rows[i, 3:], np.asarray(igm(robot, rows[i, 1:3])), atol=1e-9)
+    # the rerun with the same directory resumes at step 2 and ends with the same design
+    out, _ = _run(["optimize", *OPT, "--out", out_dir, "--json", j2], capsys)
+    assert "resumed at step 2" in out
+    rec2 = json.loads(j2.read_text())
+    assert rec2["history"] == rec["history"] and rec2["design"] == rec["design"]
+    assert rec2["laws"]["optimized"]["dwell_residual_mm"] == rec["laws"]["optimized"]["dwell_residual_mm"]
+
+
+def test_optimize_law_only_command(tmp_path, capsys):
+    path = tmp_path / "law.json"
+    _run(["optimize", *OPT, "--law-only", "--json", path], capsys)
+    rec = json.loads(path.read_text())
+    assert rec["design"]["path"]["free"] is False and rec["steps_run"] == 2
+    assert len(rec["design"]["coef"]) == 6
+    assert all(math.isfinite(x) for x in _finite_numbers(rec))
+
+
+def test_optimize_cycle_time_command(tmp_path, capsys):
+    out_dir, path = tmp_path / "ct", tmp_path / "ct.json"
+    _run(["optimize", "--cycle-time", "0.43", "0.40", "--payload", "6", "--tf", "0.43", "--steps", "2",
+          "--train", "nominal", "--out", out_dir, "--json", path], capsys)
+    rec = json.loads(path.read_text())
+    assert [r["tf"] for r in rec["rows"]] == [0.43, 0.40]
+    for r in rec["rows"]:
+        assert r["paper_best_mm"] > 0 and r["optimized_mm"] > 0 and r["optimized_torque_nm"] > 0
+    assert (out_dir / "cycle_time.json").is_file() and (out_dir / "cycle_time.png").stat().st_size > 1000
+
+
+def test_bench_command(tmp_path, capsys):
+    path = tmp_path / "b.json"
+    out, _ = _run(["bench", "--quick", "--repeats", "1", "--json", path], capsys)
+    rec = json.loads(path.read_text())
+    sweep = rec["sweep"]
+    assert sweep["rollouts"] == 24 and sweep["run_s"] > 0 and sweep["compile_s"] >= 0
+    g = rec["gradient"]["design"]
+    assert g["parameters"] == 12 and g["grad_run_s"] > 0 and g["grad_compile_s"] >= 0
+    assert rec["peak_rss_mb"] > 0 and "rollout program" in out
+
+
+def test_reproduce_quick_command(tmp_path, capsys):
+    """The main job's smoke run: every section, REPORT.md, its JSON/CSV and figures."""
+    out_dir = tmp_path / "results"
+    _run(["reproduce", "--quick", "--out", out_dir], capsys)
+    report = (out_dir / "REPORT.md").read_text()
+    for heading in ("## 1.", "## 2.", "## 3.", "optimiz"):
+        assert heading in report, heading
+    for f in ("kinematics_default.json", "modes_6kg.json", "vibration.json", "provenance.json",
+              "optimize_6kg/study.json", "optimize_0.1kg/study.json", "optimize_0.1_6kg/study.json",
+              "cycle_time/study.json", "figures/modes_along_path.png"):
+        assert (out_dir / f).is_file(), f
+    pngs = list((out_dir / "figures").glob("*.png"))
+    assert len(pngs) >= 5 and all(p.stat().st_size > 1000 for p in pngs)
+    assert "nan" not in report.lower().replace("nano", "")
+
+
+def test_unexpected_errors_become_one_line_and_a_nonzero_status(monkeypatch, capsys):
+    from jaxflex.experiments import sweep
+
+    def broken(*a, **k):
+        raise RuntimeError("something\nbroke")
+
+    monkeypatch.setattr(sweep, "compute", broken)
+    code = main(["sweep"])
+    _, err = capsys.readouterr()
+    assert code == 1
+    assert err.strip() == ("jaxflex sweep: failed: RuntimeError: something broke (set JAXFLEX_TRACEBACK=1 "
+                           "for the traceback)")
+
+
+@pytest.fixture
+def compilations():
+    """Counts XLA compilations while the test runs."""
+    count = [0]
+
+    def listener(event, duration, **kwargs):
+        if event == "/jax/core/compile/backend_compile_duration":
+            count[0] += 1
+
+    monitoring.register_event_duration_secs_listener(listener)
+    yield count
+    monitoring.unregister_event_duration_listener(listener)
+
+
+@pytest.mark.parametrize("args, named", [
+    (["sweep", "--tf", "-1"], "tf"), (["sweep", "--tf", "nan"], "tf"), (["sweep", "--dwell", "0"], "dwell"),
+    (["sweep", "--dt", "inf"], "dt"), (["sweep", "--payload", "-2"], "payload"),
+    (["optimize", "--tf", "-1"], "tf"), (["optimize", "--tf", "inf"], "tf"), (["optimize", "--steps", "-3"], "steps"),
+    (["optimize", "--lr", "0"], "learning_rate"), (["optimize", "--lr", "nan"], "learning_rate"),
+    (["optimize", "--payload", "0"], "payloads"), (["optimize", "--payload", "nan"], "payloads"),
+    (["optimize", "--coef", "0"], "n_coef"), (["optimize", "--cycle-time", "0.4", "-0.3"], "tfs"),
+    (["optimize", "--cycle-time", "0.4", "--steps", "-1"], "steps"),
+    (["bench", "--repeats", "0"], "repeats"), (["kinematics", "--steps", "0"], "steps"),
+    (["modes", "--points", "1"], "points"), (["modes", "--payload", "inf"], "payload"),
+])
+def test_bad_input_is_rejected_before_anything_compiles(args, named, capsys, compilations):
+    code = main(args)
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert err.startswith(f"jaxflex {args[0]}: error: ") and named in err, err
+    assert compilations[0] == 0, f"{compilations[0]} programs compiled before rejecting {args}"
