@@ -69,13 +69,25 @@ def resumable(path, key: dict, compute, label: str = ""):
     return json.loads(path.read_text())
 
 
-def save_figure(fig, path, dpi: int = 130) -> None:
-    """Save a matplotlib figure atomically and close it."""
+def save_figure(fig, path, dpi: int = 130, show: bool = False) -> None:
+    """Save a matplotlib figure atomically and close it. ``show``: in a Jupyter kernel, also display
+    it inline first (notebooks); elsewhere (scripts, tests, the CLI) nothing is shown."""
     import matplotlib.pyplot as plt
 
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=dpi, format=Path(path).suffix.lstrip(".") or "png", bbox_inches="tight")
+    if show and in_notebook():
+        from IPython.display import display
+
+        display(fig)
     plt.close(fig)
+
+
+def in_notebook() -> bool:
+    """True inside a Jupyter (IPython) kernel."""
+    import sys
+
+    return "ipykernel" in sys.modules
 
 
 def provenance(params: dict | None = None, started: float | None = None) -> dict:

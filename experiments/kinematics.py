@@ -37,6 +37,17 @@ def blend_lengths_mm() -> dict:
     return out
 
 
+def _samples_at_rate(robot, cycle, tf: float, rate: float, **kw):
+    """Every combination sampled at ``rate`` [Hz] from t = 0 to tf (the last sample at or before
+    tf) on a grid of ceil(tf rate) + 1 instants beyond which the motion has stopped: one compiled
+    program per sample count serves every tf up to it (the figures' three motion times, the
+    1 ms second differences and the spectra)."""
+    n = int(np.floor(tf * rate + 1e-9))
+    t = jnp.asarray(np.arange(int(np.ceil(max(tf, 1.0) * rate)) + 1) / rate)
+    traj, labels = sample_combinations(robot, cycle, tf, t, **kw)
+    return jax.tree_util.tree_map(lambda a: a[:, : n + 1], traj), labels
+
+
 def accelerations(preset: str, tf: float, steps: int) -> dict:
     """Tables 5 and 6: max |X''| [m/s^2] and max |q''| [rad/s^2] over the motion, exact (analytic
     derivatives on a fine grid) and as a second difference of q sampled every FD_STEP."""
@@ -45,9 +56,9 @@ def accelerations(preset: str, tf: float, steps: int) -> dict:
     traj, labels = sample_combinations(robot, cycle, tf, t, d=D)
     task = np.max(np.linalg.norm(np.asarray(traj.xdd), axis=-1), axis=1)
     joint = np.max(np.abs(np.asarray(traj.qdd)), axis=(1, 2))
-    t_fd = jnp.arange(0.0, tf + 0.5 * FD_STEP, FD_STEP)
-    traj_fd, _ = sample_combinations(robot, cycle, tf, t_fd, d=D)
-    q = np.asarray(traj_fd.q)
+    traj_10k, _ = _samples_at_rate(robot, cycle, tf, PSD_FS, d=D)        # shared with the spectra
+    stride = int(round(FD_STEP * PSD_FS))
+    q = np.asarray(traj_10k.q)[:, ::stride]
     fd = np.max(np.abs(q[:, 2:] - 2 * q[:, 1:-1] + q[:, :-2]) / FD_STEP**2, axis=(1, 2))
     nest = lambda v: {b: {p: float(v[i]) for i, (bb, p) in enumerate(labels) if bb == b} for b in BLENDS}
     return {"task_acc_max": nest(task), "joint_acc_max": nest(joint), "joint_acc_max_fd_1ms": nest(fd)}
@@ -56,9 +67,8 @@ def accelerations(preset: str, tf: float, steps: int) -> dict:
 def joint_acc_psd(preset: str, tf: float, d: float = D, profiles=PROFILES, blends=BLENDS):
     """PSD of both joint accelerations for blends x profiles at tf (sampled at PSD_FS)."""
     robot, cycle = robot_preset(preset), cycle_preset(preset)
-    t = jnp.arange(0.0, tf, 1.0 / PSD_FS)
-    traj, labels = sample_combinations(robot, cycle, tf, t, d=d, blends=blends, profiles=profiles)
-    qdd = jnp.swapaxes(traj.qdd, 1, 2)                      # (C, 2, T)
+    traj, labels = _samples_at_rate(robot, cycle, tf, PSD_FS, d=d, blends=blends, profiles=profiles)
+    qdd = jnp.swapaxes(traj.qdd[:, :-1], 1, 2)               # (C, 2, T): samples at t < tf
     freqs, psd = welch(qdd, PSD_FS, min(PSD_NPERSEG, qdd.shape[-1]))
     return np.asarray(freqs), {f"{b}-{p}": np.asarray(psd[i]) for i, (b, p) in enumerate(labels)}
 

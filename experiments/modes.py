@@ -9,7 +9,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxflex import checks, plotting
+from jaxflex import checks
 from jaxflex.model import modes_at_point
 from jaxflex.path import make_path, path_frame
 from jaxflex.robot import check_cycle_reachable, cycle_preset, robot_preset
@@ -19,9 +19,16 @@ from .io import fmt, provenance, save_figure, table, write_json
 
 
 @jax.jit
+@jax.jit
+def _positions(path, s):
+    return jax.vmap(lambda si: path_frame(path, si).pos)(s)
+
+
 def _along(robot, path, s):
-    x = jax.vmap(lambda si: path_frame(path, si).pos)(s)
-    return x, jax.vmap(lambda xi: modes_at_point(robot, xi))(x)
+    """Positions (N, 2) [m] and locked frequencies (N, ne) [Hz] at the arc lengths s (N,): one pose at
+    a time through the compiled program every frequency computation shares (``modes_at_point``)."""
+    x = np.asarray(_positions(path, s))
+    return x, np.stack([np.asarray(modes_at_point(robot, xi)) for xi in x])
 
 
 def compute(preset: str = "default", payload: float = 6.0, points: int = 21, blend: str = "lame",

@@ -212,19 +212,27 @@ def coeffs_many(robot: Robot, qa, qa1, qa2) -> Coeffs:
     return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *out) if stacked else out[0]
 
 
-_table_poses = jax.jit(table_poses)
-_table_poses_many = jax.jit(jax.vmap(table_poses, (0, None)))
+_table_poses = jax.jit(table_poses)        # one program per blend family, shared by every caller
+
+
+def robot_table_poses(robot: Robot, path: Path):
+    """``table_poses`` on concrete values for a robot or a stack of K robots (leading K axis on
+    every output), one robot at a time through the shared compiled program."""
+    if np.ndim(robot.payload) == 0:
+        return _table_poses(robot, path)
+    poses = [_table_poses(r, path) for r in _robot_list(robot)]
+    return tuple(jnp.stack(a) for a in zip(*poses))
 
 
 def path_tables(robot: Robot, path: Path) -> Tables:
     """``build_tables`` on concrete arrays through the shared coefficient program (``coeffs_many``):
     no new compilation of the model per caller. ``robot`` may be a stack of K robots (tables with a
     leading K axis)."""
+    values = coeffs_many(robot, *robot_table_poses(robot, path))
     if np.ndim(robot.payload) == 0:
-        return Tables(values=coeffs_many(robot, *_table_poses(robot, path)), breaks=path.breaks)
+        return Tables(values=values, breaks=path.breaks)
     k = np.shape(robot.payload)[0]
-    return Tables(values=coeffs_many(robot, *_table_poses_many(robot, path)),
-                  breaks=jnp.broadcast_to(path.breaks, (k,) + path.breaks.shape))
+    return Tables(values=values, breaks=jnp.broadcast_to(path.breaks, (k,) + path.breaks.shape))
 
 
 def interpolate(tables: Tables, s) -> Coeffs:

@@ -348,10 +348,19 @@ def static_deflection(robot: Robot, qa, external=None) -> jax.Array:
     return ee_position(robot, qa, qe) - ee_position(robot, qa, jnp.zeros_like(qe))
 
 
+def _frequencies_at_point(robot: Robot, x):
+    return locked_modes(robot, igm(robot, x))[0]
+
+
+_frequencies_at_point_jit = jax.jit(_frequencies_at_point)
+
+
 def modes_at_point(robot: Robot, x):
     """Locked-motor natural frequencies [Hz] (ne,) at end-effector position x (2,) (rigid IGM pose).
 
-    A concrete (non-traced) x is first checked for reachability and singularity (ValueError)."""
-    if not isinstance(x, jax.core.Tracer):
-        check_reachable(robot, np.asarray(x)[None], "pose")
-    return locked_modes(robot, igm(robot, x))[0]
+    A concrete (non-traced) x is first checked for reachability and singularity (ValueError), then
+    evaluated by one compiled program (shared by every caller with the same mode counts)."""
+    if any(isinstance(v, jax.core.Tracer) for v in jax.tree_util.tree_leaves((robot, x))):
+        return _frequencies_at_point(robot, x)
+    check_reachable(robot, np.asarray(x)[None], "pose")
+    return _frequencies_at_point_jit(robot, jnp.asarray(x, dtype=float))

@@ -27,6 +27,8 @@ All functions are pure; ``rollout`` is written for one trajectory and vmapped by
 """
 from __future__ import annotations
 
+import dataclasses
+import functools
 from typing import NamedTuple
 
 import jax
@@ -87,6 +89,19 @@ def motion_samples(length, profile: Profile, tf, grid: Grid) -> MotionSamples:
         return v.s * length, v.ds * length / tf, v.dds * length / tf**2
 
     return MotionSamples(start=at(k / n, 1), end=at((k + 1) / n, -1), mid=at((np.arange(nc) + 0.5) / nc, 1))
+
+
+@functools.partial(jax.jit, static_argnames=("grid",))
+def _motion_samples_jit(length, profile, tf, grid):
+    return motion_samples(length, profile, tf, grid)
+
+
+def sample_motion(length, profile: Profile, tf, grid: Grid) -> MotionSamples:
+    """``motion_samples`` on concrete values through one compiled program per kind of law (its
+    display name does not matter): eager evaluation would dispatch (and compile) every small
+    operation of the law on its own."""
+    return _motion_samples_jit(jnp.asarray(length, dtype=float), dataclasses.replace(profile, name=""),
+                               jnp.asarray(tf, dtype=float), grid)
 
 
 class Series(NamedTuple):

@@ -1,12 +1,11 @@
-"""Batched simulation: all blend x profile combinations for several cases (payload, tf) in one jitted
-call, metrics included; optional sharding of large design batches over devices.
+"""The paper sweep: all blend x profile combinations for several cases (payload, tf), every rollout
+through the evaluation engine's one compiled program (``jaxflex.engine``), metrics included.
 
-Tables (linearization coefficients along each path, per payload) are built first; then all
-rollouts (blend x profile x case) run in one jitted call, and their metrics in a small one.
+Tables (linearization coefficients along each path, per payload) are built first; then every
+rollout (blend x profile x case) runs, and the metrics of all of them in a small program.
 """
 from __future__ import annotations
 
-import functools
 import math
 import time
 from typing import NamedTuple, Sequence
@@ -15,15 +14,15 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxflex import checks
+from jaxflex import checks, engine
 from jaxflex.blends import BLENDS
 from jaxflex.expm import squarings_for
-from jaxflex.linearized import Tables, coeffs_many, table_poses
-from jaxflex.metrics import METRICS, batch_metrics
+from jaxflex.linearized import Tables, coeffs_many, robot_table_poses
+from jaxflex.metrics import METRICS
 from jaxflex.path import check_path_args, make_path
 from jaxflex.profiles import PROFILES, make_profile
 from jaxflex.robot import Robot, check_cycle_reachable
-from jaxflex.simulate import Grid, check_grid, motion_samples, rollout
+from jaxflex.simulate import Grid, check_grid, sample_motion
 
 
 class Case(NamedTuple):
@@ -57,10 +56,10 @@ def default_grid(robot: Robot, tfs, dwell: float, dt: float | None = None) -> Gr
     return Grid(coarse=coarse, fine=fine, dwell_steps=dwell_steps, squarings=squarings_for(4 * omega * h))
 
 
-@functools.partial(jax.jit, static_argnames=("blend",))
 def _poses(robot, cycle, d, e, n, blend):
+    """Table poses, length and breaks of a blend's path (the shared compiled pose program)."""
     path = make_path(cycle, blend, d, e, n)
-    return table_poses(robot, path), path.length, path.breaks
+    return robot_table_poses(robot, path), path.length, path.breaks
 
 
 def _coeffs(robot, payloads, qa, qa1, qa2):
@@ -73,36 +72,19 @@ def _coeffs(robot, payloads, qa, qa1, qa2):
     return jax.tree_util.tree_map(lambda v: v.reshape(v.shape[:1] + shape + v.shape[2:]), values)
 
 
-def _rollouts(values, breaks, lengths, tfs, dwell, robots, profiles, grid):
-    """All rollouts: tables (C, B, ...) -> series with leading axes (B, P, C) (their metrics come
-    from ``metrics.batch_metrics``: the rollout program is the same with or without series).
-
-    The motion samples of every law are computed first (a cheap static loop over the laws) and
-    stacked, so that a single rollout body, vmapped over blend x law x case, serves all laws: one
-    copy of the rollout in the compiled program however many laws there are.
-    ``robots``: the robot per case (C,) for the second-order formulation, or None (first order)."""
-    def samples_of(prof):
-        per_case = jax.vmap(lambda L, tf: motion_samples(L, prof, tf, grid), in_axes=(None, 0))
-        return jax.vmap(per_case, in_axes=(0, None))(lengths, tfs)               # (B, C, ...)
-
-    samples = [samples_of(make_profile(name)) for name in profiles]
-    samples = jax.tree_util.tree_map(lambda *a: jnp.stack(a, axis=1), *samples)   # (B, P, C, ...)
-
-    def one(vals, br, smp, tf, robot):
-        return rollout(Tables(values=vals, breaks=br), smp, tf, dwell, grid, robot)
-
-    per_case = jax.vmap(one, in_axes=(0, None, 0, 0, 0))                           # (C)
-    per_law = jax.vmap(per_case, in_axes=(None, None, 0, None, None))              # (P)
-    per_blend = jax.vmap(per_law, in_axes=(1, 0, 0, None, None))                  # (B)
-    return per_blend(values, breaks, samples, tfs, robots)
-
-
-_rollouts_jit = jax.jit(_rollouts, static_argnames=("profiles", "grid"))
-
-
-def _rollouts_and_metrics(*args, **kw):
-    series = _rollouts_jit(*args, **kw)
-    return batch_metrics(series), series
+def _sweep_series(values, breaks, lengths, tfs, dwell, robots, profiles, grid, second_order):
+    """Every rollout (blend x law x case) through the evaluation engine (``jaxflex.engine``: one
+    compiled program for every run), series stacked with leading axes (B, P, C); tables (C, B, ...)."""
+    stack = lambda items: jax.tree_util.tree_map(lambda *a: jnp.stack(a), *items)
+    laws = [make_profile(name) for name in profiles]
+    out = []
+    for i in range(breaks.shape[0]):
+        tables = [Tables(values=jax.tree_util.tree_map(lambda v: v[c, i], values), breaks=breaks[i])
+                  for c in range(len(tfs))]
+        out.append(stack([stack([engine.run(tables[c], sample_motion(lengths[i], law, tfs[c], grid), tfs[c], dwell,
+                                            robots[c], grid, second_order) for c in range(len(tfs))])
+                          for law in laws]))
+    return stack(out)
 
 
 def _stacked_tables(robot, cycle, payloads, blends, d, e, n):
@@ -152,13 +134,13 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES, *, d=0.0
               second_order: bool = True) -> SweepResult:
     """Simulate every blend x profile x case; validate inputs first (no compilation on bad input).
 
-    Three jitted stages: the table poses per blend family, the linearization coefficients for every
-    blend and payload (one compiled function shared by all blends), and one program with every
-    rollout (vmapped over blend, law, case), then the metrics (``metrics.batch_metrics``).
-    Timing: ``tables_s`` is the wall time of the first two stages (compilation included; the
+    Three compiled stages, each shared with the rest of the library: the table poses (one program per
+    blend family), the linearization coefficients (``linearized.coeffs_many``) and the rollouts, one
+    trajectory at a time through the evaluation engine (``jaxflex.engine``), then the metrics.
+    Timing: ``tables_s`` is the wall time of the table build (compilation included; the
     persistent compilation cache makes it short after the first run on a machine); ``compile_s``
-    the rollout program's first call minus one run; ``run_s`` the median of ``repeats`` runs of
-    the rollout program after compilation. ``second_order`` (default) adds the full model's
+    the first sweep (every rollout through the engine's one program, and the metrics) minus one
+    run; ``run_s`` the median of ``repeats`` sweeps after compilation. ``second_order`` (default) adds the full model's
     second-order remainder (``simulate.rollout``): agreement with the full nonlinear model within
     about 0.3 % on every metric; False gives the linearized model (still two passes, the second one
     making the coefficients continuous; ``grid=Grid(..., continuous=False)`` makes it one pass).
@@ -183,30 +165,30 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES, *, d=0.0
     grid = grid or default_grid(robot, [c.tf for c in cases], dwell, dt)
     check_grid(grid)
     payloads = jnp.asarray([c.payload for c in cases])
-    tfs = jnp.asarray([c.tf for c in cases])
     d_, e_, n_ = (jnp.asarray(v, dtype=float) for v in (d, e, n))
     t0 = time.perf_counter()
     values, breaks, lengths = _stacked_tables(robot, cycle, payloads, blends, d_, e_, n_)
     values = jax.block_until_ready(values)
     tables_s = time.perf_counter() - t0
-    robots = None
-    if second_order:
-        robots = jax.vmap(lambda m: robot.replace(payload=m))(payloads)
-    args = (values, breaks, lengths, tfs, jnp.asarray(dwell, dtype=float), robots)
-    kw = dict(profiles=profiles, grid=grid)
+    robots = [robot.replace(payload=c.payload) for c in cases]
+    tf_list = [c.tf for c in cases]
+
+    def sweep():
+        series = _sweep_series(values, breaks, lengths, tf_list, dwell, robots, profiles, grid, second_order)
+        return engine.metrics_of(series), series
+
     t0 = time.perf_counter()
-    out = jax.block_until_ready(_rollouts_and_metrics(*args, **kw))
+    mets, series = jax.block_until_ready(sweep())
     first = time.perf_counter() - t0
     runs = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        out = jax.block_until_ready(_rollouts_and_metrics(*args, **kw))
+        mets, series = jax.block_until_ready(sweep())
         runs.append(time.perf_counter() - t0)
     run_s = float(np.median(runs))
-    mets = {k: np.asarray(v) for k, v in out[0].items()}
     _check_finite(mets, blends, profiles, cases)
-    return SweepResult(mets, out[1] if with_series else None, blends, profiles, cases, grid, max(first - run_s, 0.0),
-                       run_s, tables_s)
+    return SweepResult(mets, series if with_series else None, blends, profiles, cases, grid,
+                       max(first - run_s, 0.0), run_s, tables_s)
 
 
 def _check_finite(mets, blends, profiles, cases):

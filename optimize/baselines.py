@@ -11,34 +11,28 @@ of them go through the same compiled rollout (``LawEvaluator``).
 """
 from __future__ import annotations
 
-import functools
 from typing import NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxflex import engine
 from jaxflex import model as mdl
 from jaxflex.linearized import path_tables
-from jaxflex.metrics import batch_metrics
 from jaxflex.path import Cycle, Path
 from jaxflex.profiles import Profile, zv, zvd
-from jaxflex.robot import Robot, igm
-from jaxflex.simulate import Grid, MotionSamples, rollout
+from jaxflex.robot import Robot
+from jaxflex.simulate import Grid, MotionSamples, sample_motion
 
 # Ruckig limit shape (units of L / tf^k): velocity and acceleration of a trapezoid with ta = tf/4,
 # jerk time half the acceleration time. The limits are then scaled in time so the duration is tf.
 RUCKIG_SHAPE = (4.0 / 3.0, 16.0 / 3.0, 16.0 / 3.0 / 0.125)
 
 
-@jax.jit
-def _first_mode_hz(robot: Robot, place):
-    return mdl.locked_modes(robot, igm(robot, place))[0][0]
-
-
 def place_first_mode_hz(robot: Robot, cycle: Cycle) -> float:
     """First locked-motor natural frequency [Hz] at the place pose (payload included)."""
-    return float(_first_mode_hz(robot, jnp.asarray(cycle.place)))
+    return float(mdl.modes_at_point(robot, np.asarray(cycle.place))[0])
 
 
 def shaper_profiles(base: str, freq_hz: float, tf: float) -> list[Profile]:
@@ -115,23 +109,13 @@ def model_set(robot: Robot, payloads: Sequence[float], *, stiffness=(1.0,), payl
     return ModelSet(stacked, tuple(labels))
 
 
-def _law_metrics(tables, robots, samples, tf, dwell, grid):
-    """Metrics of the runs of ``_law_series`` (the same rollout program and a small metrics one)."""
-    return batch_metrics(_law_series(tables, robots, samples, tf, dwell, grid))
-
-
-@functools.partial(jax.jit, static_argnames=("grid",))
-def _law_series(tables, robots, samples, tf, dwell, grid):
-    return jax.vmap(lambda tab, r: rollout(tab, samples, tf, dwell, grid, r))(tables, robots)
-
-
 class LawEvaluator:
     """Metrics of any motion law along one path on a set of models (second-order fast model).
 
-    The tables are built once per model; every law (paper, shaped, input-shaped, Ruckig samples)
-    reuses one compiled rollout. ``chunk``: the models are simulated in batches of this many (the
-    last one padded with copies of the last model), so that evaluators of different model sets
-    with the same ``chunk`` share one compiled program; None: one batch of all the models."""
+    The tables are built once per model; every law (paper, shaped, input-shaped, Ruckig samples) on
+    every model runs through the evaluation engine's one compiled program (``jaxflex.engine``), one
+    model at a time, so evaluators of any model set share it. ``chunk`` is accepted for
+    compatibility (it used to set the batch size of a vmapped program) and must be >= 1."""
 
     def __init__(self, models: ModelSet, path: Path, tf: float, dwell: float, grid: Grid, *,
                  chunk: int | None = None):
@@ -140,13 +124,9 @@ class LawEvaluator:
         if chunk < 1:
             raise ValueError(f"chunk must be >= 1, got {chunk}")
         self.models, self.path, self.tf, self.dwell, self.grid, self.chunk = models, path, tf, dwell, grid, chunk
-        pad = -k % chunk
-        robots = models.robots if not pad else jax.tree_util.tree_map(
-            lambda v: jnp.concatenate([v, jnp.repeat(v[-1:], pad, axis=0)]), models.robots)
-        tables = path_tables(robots, path)
-        part = lambda tree, i: jax.tree_util.tree_map(lambda v: v[i * chunk:(i + 1) * chunk], tree)
-        self._batches = [(part(tables, i), part(robots, i)) for i in range((k + pad) // chunk)]
-        self.tables = tables if not pad else jax.tree_util.tree_map(lambda v: v[:k], tables)   # without padding
+        self.tables = path_tables(models.robots, path)
+        self._per_model = [(jax.tree_util.tree_map(lambda v: v[i], self.tables),
+                            jax.tree_util.tree_map(lambda v: v[i], models.robots)) for i in range(k)]
 
     def with_grid(self, grid: Grid) -> "LawEvaluator":
         """The same path and models on another grid, sharing the tables (they do not depend on it)."""
@@ -155,28 +135,19 @@ class LawEvaluator:
         return other
 
     def samples(self, profile: Profile, tf: float | None = None) -> MotionSamples:
-        from jaxflex.simulate import motion_samples
-
-        return motion_samples(self.path.length, profile, self.tf if tf is None else tf, self.grid)
-
-    def _run(self, fn, law, tf):
-        tf = self.tf if tf is None else tf
-        samples = law if isinstance(law, MotionSamples) else self.samples(law, tf)
-        args = (samples, jnp.asarray(tf, dtype=float), jnp.asarray(self.dwell, dtype=float), self.grid)
-        outs = [fn(tables, robots, *args) for tables, robots in self._batches]
-        k = len(self.models.labels)
-        if len(outs) == 1 and self.chunk == k:          # one unpadded batch: no copy
-            return outs[0]
-        return jax.tree_util.tree_map(lambda *v: jnp.concatenate(v)[:k], *outs)
+        return sample_motion(self.path.length, profile, self.tf if tf is None else tf, self.grid)
 
     def series(self, law, tf: float | None = None):
         """The simulation ``Series`` of a law on every model (leading axis K)."""
-        return self._run(_law_series, law, tf)
+        tf = self.tf if tf is None else tf
+        samples = law if isinstance(law, MotionSamples) else self.samples(law, tf)
+        return engine.run_many([(tables, samples, tf, self.dwell, robot) for tables, robot in self._per_model],
+                               self.grid)
 
     def __call__(self, law, tf: float | None = None) -> dict:
         """law: a Profile or MotionSamples -> metrics dict name -> (K,) numpy arrays. ``tf`` [s]
         overrides the motion time (same grid, no recompilation; MotionSamples must match it)."""
-        out = {k: np.asarray(v) for k, v in self._run(_law_metrics, law, tf).items()}
+        out = engine.metrics_of(self.series(law, tf))
         bad = [k for k, v in out.items() if not np.all(np.isfinite(v))]
         if bad:
             raise FloatingPointError(f"non-finite {bad} for law {getattr(law, 'name', 'samples')}")

@@ -102,12 +102,19 @@ def _value_and_grad(f: Callable, args, mode: str):
 
 
 @functools.partial(jax.jit, static_argnames=("f", "mode"))
+def _value_and_grad_jit(params, args, f, mode):
+    return _value_and_grad(f, args, mode)(params)
+
+
 def value_and_grad(params, args, *, f, mode: str = "reverse"):
     """((value, aux), gradient) of f(params, *args) -> (value, aux): the program the optimizer runs
-    at every step. Module level with f static: calls with the same f (the same object) and new
-    ``args`` values of the same shapes reuse one compilation (e.g. a sweep over tf or payloads, a
-    benchmark or a gradient check of the optimizer's own gradient)."""
-    return _value_and_grad(f, args, mode)(params)
+    at every step. Compiled with f static: calls with the same f (the same object) and new ``args``
+    values of the same shapes reuse one compilation (e.g. a sweep over tf or payloads, a benchmark
+    or a gradient check of the optimizer's own gradient)."""
+    return _value_and_grad_jit(params, args, f, mode)
+
+
+value_and_grad._cache_size = _value_and_grad_jit._cache_size
 
 
 @jax.jit

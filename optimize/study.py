@@ -341,9 +341,18 @@ def design_objective(models: ModelSet, cycle: Cycle, tf: float, dwell: float, gr
     check_grid(grid)
     if workspaces is None:
         workspaces = build_workspace(models.robots, cycle)
-    args = (models.robots, cycle, jnp.asarray(tf, dtype=float), jnp.asarray(dwell, dtype=float), scales,
-            workspaces)
+    args = (models.robots, cycle, _host_scalar(tf), _host_scalar(dwell), _canonical(scales), workspaces)
     return _design_objective(grid), args
+
+
+def _host_scalar(v):
+    return jax.device_put(np.asarray(v, dtype=np.float64))
+
+
+def _canonical(scales: Scales) -> Scales:
+    """Scales as strongly typed float64 arrays: a weakly typed value (e.g. ``jnp.full(1, 1e-3)``)
+    would give the same objective a second compiled program."""
+    return Scales(*(None if v is None else _host_scalar(v) for v in scales))
 
 
 def train_law(train: LawEvaluator, path: Path, tf: float, scales: Scales, init, *, steps: int = 100,
@@ -364,8 +373,8 @@ def law_objective_args(models: ModelSet, path: Path, tf: float, dwell: float, gr
     them to the optimizer (``tables``: the path's tables for the models, built here if None)."""
     check_grid(grid)
     tables = path_tables(models.robots, path) if tables is None else tables
-    args = (tables, jnp.asarray(path.length), jnp.asarray(tf, dtype=float), jnp.asarray(dwell, dtype=float),
-            scales, models.robots)
+    args = (tables, jnp.asarray(path.length, dtype=float), _host_scalar(tf), _host_scalar(dwell), _canonical(scales),
+            models.robots)
     return _law_objective(grid), args
 
 

@@ -58,3 +58,23 @@ def test_notebook_runs_in_quick_mode(name, tmp_path, monkeypatch):
         assert set(summary["laws"]) >= {"optimized"} and len(summary["laws"]) >= 2
         assert summary["steps_run"] >= 1 and len(summary["coef"]) >= 2
         assert summary["laws"]["optimized"]["dwell_residual_mm"] > 0
+
+
+def test_notebook_twins_match_their_scripts():
+    """Each notebook script has its Jupyter twin (.ipynb: same cells, no outputs) checked in, in step
+    with the script (``python experiments/notebooks/pair.py`` rewrites them), and a Jupyter kernel
+    displays the figures inline (the scripts force a non-interactive backend only outside a kernel)."""
+    import importlib.util
+    import json
+
+    spec = importlib.util.spec_from_file_location("pair", NOTEBOOKS / "pair.py")
+    pair = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(pair)
+    assert set(pair.NOTEBOOKS) == set(FIGURES)
+    for name in pair.NOTEBOOKS:
+        script = (NOTEBOOKS / f"{name}.py").read_text()
+        twin = json.loads((NOTEBOOKS / f"{name}.ipynb").read_text())
+        assert twin == pair.notebook(script), f"{name}.ipynb is out of date: run python experiments/notebooks/pair.py"
+        assert twin["nbformat"] == 4 and any(c["cell_type"] == "markdown" for c in twin["cells"])
+        code = "".join("".join(c["source"]) for c in twin["cells"] if c["cell_type"] == "code")
+        assert 'if "ipykernel" not in sys.modules' in code and "show=True" in code

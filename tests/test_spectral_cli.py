@@ -23,7 +23,7 @@ def test_welch_parseval_and_peak():
 
 def test_kinematics_cli_json(tmp_path, capsys):
     out = tmp_path / "k.json"
-    assert main(["kinematics", "--steps", "2000", "--json", str(out)]) == 0
+    assert main(["kinematics", "--steps", "10000", "--json", str(out)]) == 0
     res = json.loads(out.read_text())
     assert set(res["blend_length_mm"]) >= {"lame", "clothoid", "polar", "lame_extended", "clothoid_extended"}
     for key in ("task_acc_max", "joint_acc_max"):

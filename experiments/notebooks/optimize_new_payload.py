@@ -41,9 +41,12 @@
 import jax
 
 jax.config.update("jax_enable_x64", True)
+import sys
+
 import matplotlib
 
-matplotlib.use("Agg")
+if "ipykernel" not in sys.modules:      # run as a script (python file.py, the tests): no display, files only
+    matplotlib.use("Agg")
 
 import json
 import os
@@ -195,7 +198,7 @@ ax.set(yscale="log", ylabel="dwell residual [mm]",
 ax.grid(alpha=0.3, axis="y")
 ax.legend(fontsize=8)
 fig.tight_layout()
-save_figure(fig, OUT / "paper_sweep.png")
+save_figure(fig, OUT / "paper_sweep.png", show=True)
 
 eta = jnp.linspace(0.0, 1.0, 401)
 curves = {f"{best_law} (best paper)": make_profile(best_law), "poly7": make_profile("poly7"),
@@ -212,7 +215,7 @@ for a in ax:
     a.grid(alpha=0.3)
 ax[0].legend()
 fig.tight_layout()
-save_figure(fig, OUT / "law.png")
+save_figure(fig, OUT / "law.png", show=True)
 
 hist = np.asarray([row[:2] for row in result.history], dtype=float).reshape(-1, 2)   # (step, objective)
 fig, ax = plt.subplots(figsize=(6, 3.6))
@@ -222,7 +225,7 @@ ax.set(xlabel="Adam step", ylabel="objective (log scale of the residual)", title
 ax.grid(alpha=0.3)
 ax.legend()
 fig.tight_layout()
-save_figure(fig, OUT / "history.png")
+save_figure(fig, OUT / "history.png", show=True)
 
 fig, ax = plt.subplots(1, 2, figsize=(11, 3.8))
 names = list(laws)
@@ -235,7 +238,7 @@ for a, metric, label in ((ax[0], "dwell_residual_mm", "dwell residual [mm]"),
 ax[1].axhline(float(torque_bound), color="k", ls=":", lw=1)
 fig.suptitle(f"{PAYLOAD:g} kg, tf = {TF:g} s")
 fig.tight_layout()
-save_figure(fig, OUT / "comparison.png")
+save_figure(fig, OUT / "comparison.png", show=True)
 
 # %%
 summary = {"quick": QUICK, "payload_kg": PAYLOAD, "tf_s": TF, "dwell_s": DWELL, "blend": blend,

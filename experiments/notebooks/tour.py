@@ -26,9 +26,12 @@
 import jax
 
 jax.config.update("jax_enable_x64", True)
+import sys
+
 import matplotlib
 
-matplotlib.use("Agg")
+if "ipykernel" not in sys.modules:      # run as a script (python file.py, the tests): no display, files only
+    matplotlib.use("Agg")
 
 import json
 import os
@@ -80,7 +83,7 @@ print(f"assumed modes per link: {robot.n_bending} bending (proximal), {robot.n_a
 # %%
 eta = jnp.linspace(0.0, 1.0, 401)
 fig = plotting.motion_laws(np.asarray(eta), {p: profile_eval(make_profile(p), eta) for p in PROFILES})
-save_figure(fig, OUT / "motion_laws.png")
+save_figure(fig, OUT / "motion_laws.png", show=True)
 v = profile_eval(profile, eta)
 print(f"{LAW}: peak S' = {float(jnp.max(v.ds)):.4f}, peak |S''| = {float(jnp.max(jnp.abs(v.dds))):.4f} "
       f"(x L / tf, x L / tf^2 for the path speed and acceleration)")
@@ -141,7 +144,7 @@ for a in ax:
     a.grid(alpha=0.3)
     a.legend()
 fig.tight_layout()
-save_figure(fig, OUT / "error.png")
+save_figure(fig, OUT / "error.png", show=True)
 
 # All four laws on the same path (the paper's Fig. 12 layout, library plot):
 s_ = all_series
@@ -151,7 +154,7 @@ fig = plotting.tracking_errors(
     {f"{BLEND}/{p}": 1e3 * np.linalg.norm(s_.e_dwell[0, k, 0] - s_.e_static[0, k, 0][None], axis=-1)
      for k, p in enumerate(res.profiles)},
     f"End-effector error, {PAYLOAD:g} kg, tf = {TF:g} s")
-save_figure(fig, OUT / "error_all_laws.png")
+save_figure(fig, OUT / "error_all_laws.png", show=True)
 
 # %% [markdown]
 # ## Motor torques
@@ -170,7 +173,7 @@ ax.set(xlabel="t [s]", ylabel="torque [N m]",
 ax.grid(alpha=0.3)
 ax.legend()
 fig.tight_layout()
-save_figure(fig, OUT / "torques.png")
+save_figure(fig, OUT / "torques.png", show=True)
 
 # %%
 summary = {

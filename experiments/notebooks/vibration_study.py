@@ -30,9 +30,12 @@
 import jax
 
 jax.config.update("jax_enable_x64", True)
+import sys
+
 import matplotlib
 
-matplotlib.use("Agg")
+if "ipykernel" not in sys.modules:      # run as a script (python file.py, the tests): no display, files only
+    matplotlib.use("Agg")
 
 import json
 import os
@@ -170,7 +173,7 @@ for k, case in enumerate(res.cases):
         ax.grid(alpha=0.3, axis="y")
         ax.legend(fontsize=8)
 fig.tight_layout()
-save_figure(fig, OUT / "bars.png")
+save_figure(fig, OUT / "bars.png", show=True)
 
 # %% [markdown]
 # ## Dwell time histories (paper Fig. 12)
@@ -186,7 +189,7 @@ fig = plotting.tracking_errors(
     {key: 1e3 * np.linalg.norm(s.e_dwell[i, j, 0] - s.e_static[i, j, 0][None], axis=-1)
      for i, j, key in keys},
     f"End-effector error, {res.cases[0].payload:g} kg, tf = {res.cases[0].tf:g} s")
-save_figure(fig, OUT / "dwell_histories.png")
+save_figure(fig, OUT / "dwell_histories.png", show=True)
 
 # %%
 summary = {"quick": QUICK, "cases": [c._asdict() for c in res.cases], "blends": list(res.blends),
