@@ -15,7 +15,7 @@ from jaxflex.metrics import METRICS, UNITS
 from jaxflex.model import modes_at_point
 from jaxflex.profiles import PROFILES
 from jaxflex.robot import cycle_preset, robot_preset
-from jaxflex.sweep import PAPER_CASES, Case, run_sweep
+from jaxflex.sweep import PAPER_CASES, run_sweep
 
 from . import paper_data
 from .io import fmt, pct, rel_diff, table

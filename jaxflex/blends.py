@@ -28,7 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxflex.quadrature import gauss_legendre, integrate
+from jaxflex.quadrature import integrate
 
 BLENDS = ("lame", "clothoid", "polar")
 

@@ -37,7 +37,7 @@ import numpy as np
 
 from jaxflex import linalg
 from jaxflex.expm import expm_fixed
-from jaxflex.linearized import Coeffs, Tables, evaluate, interpolate, remainder
+from jaxflex.linearized import Tables, interpolate, remainder
 from jaxflex.profiles import Profile, profile_eval
 
 

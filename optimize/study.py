@@ -36,9 +36,9 @@ from jaxflex.blends import BLENDS
 from jaxflex.designs import Design, design, design_path
 from jaxflex.linearized import path_tables
 from jaxflex.path import Cycle, Path, make_path
-from jaxflex.profiles import PROFILES, Profile, make_profile, shaped
+from jaxflex.profiles import PROFILES, make_profile, shaped
 from jaxflex.robot import Robot, check_cycle_reachable
-from jaxflex.simulate import Grid, MotionSamples, check_grid
+from jaxflex.simulate import Grid, check_grid
 from jaxflex.sweep import default_grid
 from jaxflex.workspace import Workspace, build_workspace
 

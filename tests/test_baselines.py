@@ -5,12 +5,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxflex import model as mdl
 from jaxflex.experiments.optimize import trajectory_rows
 from jaxflex.optimize.baselines import model_set, place_first_mode_hz, ruckig_limits, ruckig_samples
 from jaxflex.path import make_path
 from jaxflex.profiles import make_profile
-from jaxflex.robot import cycle_preset, dgm, igm, robot_preset
+from jaxflex.robot import cycle_preset, dgm, robot_preset
 from jaxflex.simulate import Grid
 
 

@@ -445,7 +445,7 @@ def test_unreachable_poses_are_rejected_with_the_point_and_arm(where, radius, an
     cycle = make_cycle(pick, place, h=h)
     match = rf"{where} \(.*\) m is unreachable by arm [12] .*(exceeds l1 \+ l2|is below \|l1 - l2\|)"
     if where == "path point":      # the lift meets the edge of the workspace (aligned links) first
-        match = rf"path point \(.*\) m is (unreachable by arm|at a serial singularity of arm) [12]"
+        match = r"path point \(.*\) m is (unreachable by arm|at a serial singularity of arm) [12]"
     with pytest.raises(ValueError, match=match):
         check_cycle_reachable(ROBOT, cycle)
     _no_compile(lambda: sample_combinations(ROBOT, cycle, 0.43, T, blends=("lame",), d=0.02), match)

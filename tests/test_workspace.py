@@ -5,11 +5,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxflex.linearized import build_tables, pose_coeffs
+from jaxflex.linearized import coeffs_many, path_tables
 from jaxflex.path import make_path
 from jaxflex.robot import cycle_preset, igm, robot_preset
-from jaxflex.workspace import (MONOMIALS, ORDER0, ORDER1, ORDER2, _basis_at, _basis_full, _order,
-                               build_workspace, coeffs_from_basis, workspace_tables)
+from jaxflex.workspace import (MONOMIALS, ORDER0, ORDER1, ORDER2, _PROBES, _combine_all, _order, build_workspace,
+                               coeffs_from_basis, workspace_tables)
 
 
 @pytest.fixture(scope="module")
@@ -26,9 +26,11 @@ def test_coefficients_are_exact_polynomials_in_the_path_derivatives():
     hold the ~1e9 N/m axial stiffness, so their round-off is ~1e-7 N/m absolute (measured 2.4e-7 on k1,
     whose entries reach 21)."""
     robot = robot_preset("default", payload=6.0)
-    qa = igm(robot, jnp.asarray([0.05, 0.27]))
-    full = jax.jit(_basis_full)(robot, qa)
-    e = {k: np.asarray(v) for k, v in full.items()}
+    qa = np.asarray(igm(robot, jnp.asarray([0.05, 0.27])))
+    # pose_coeffs at the eight probes, through the library's shared coefficient program
+    probes = np.asarray(_PROBES)
+    full = coeffs_many(robot, np.repeat(qa[None], len(probes), 0), probes[:, :2], probes[:, 2:])._asdict()
+    e = {k: np.asarray(v) for k, v in full.items() if k in ORDER0 + ORDER1 + ORDER2}
     b = {k: np.stack([e[k][0], 0.5 * (e[k][1] - e[k][2]), 0.5 * (e[k][3] - e[k][4]),
                       0.5 * (e[k][1] + e[k][2]) - e[k][0], np.zeros_like(e[k][0]), 0.5 * (e[k][3] + e[k][4]) - e[k][0],
                       e[k][6] - e[k][0], e[k][7] - e[k][0]]) for k in e}
@@ -38,15 +40,15 @@ def test_coefficients_are_exact_polynomials_in_the_path_derivatives():
         dropped = np.delete(b[k], MONOMIALS[_order(k)], axis=0)
         assert np.max(np.abs(dropped)) <= 1e-7 * scale, k
     assert set(ORDER0 + ORDER1 + ORDER2) == set(e)
-    basis = jax.jit(_basis_at)(robot, qa)
+    basis = jax.tree_util.tree_map(lambda v: v[0], _combine_all({k: jnp.asarray(v)[None] for k, v in e.items()}))
     rng = np.random.default_rng(0)
-    for _ in range(3):
-        qa1, qa2 = jnp.asarray(rng.normal(0, 4, 2)), jnp.asarray(rng.normal(0, 300, 2))   # rad/m, rad/m^2
-        ours = coeffs_from_basis(basis, qa, qa1, qa2)._asdict()
-        ref = jax.jit(pose_coeffs)(robot, qa, qa1, qa2)._asdict()
-        for k in ref:
-            np.testing.assert_allclose(ours[k], ref[k], rtol=0, atol=1e-7 * (np.max(np.abs(ref[k])) + 1e-300),
-                                       err_msg=k)
+    qa1s, qa2s = rng.normal(0, 4, (3, 2)), rng.normal(0, 300, (3, 2))             # rad/m, rad/m^2
+    refs = coeffs_many(robot, np.repeat(qa[None], 3, 0), qa1s, qa2s)._asdict()
+    for i in range(3):
+        ours = coeffs_from_basis(basis, jnp.asarray(qa), jnp.asarray(qa1s[i]), jnp.asarray(qa2s[i]))._asdict()
+        for k in refs:
+            ref = np.asarray(refs[k][i])
+            np.testing.assert_allclose(ours[k], ref, rtol=0, atol=1e-7 * (np.max(np.abs(ref)) + 1e-300), err_msg=k)
 
 
 def _tables(cycle, d, e, fn):
@@ -61,7 +63,7 @@ def test_workspace_tables_and_their_blend_derivatives_match_the_exact_tables(set
     value (the interpolant's derivative error is O(grid^3): measured 6e-4, on k0, whose derivative
     is small because K0 hardly depends on the pose)."""
     robot, cycle, ws = setup
-    exact = jax.jit(lambda d, e: _tables(cycle, d, e, lambda p: build_tables(robot, p)))
+    exact = lambda d, e: _tables(cycle, d, e, lambda p: path_tables(robot, p))      # the shared program
     interp = lambda d, e: _tables(cycle, d, e, lambda p: workspace_tables(ws, robot, p))
     d0, e0 = 0.015, 0.06
     ex, ap = exact(d0, e0), jax.jit(interp)(d0, e0)
