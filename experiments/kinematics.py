@@ -73,6 +73,12 @@ def joint_acc_psd(preset: str, tf: float, d: float = D, profiles=PROFILES, blend
     return np.asarray(freqs), {f"{b}-{p}": np.asarray(psd[i]) for i, (b, p) in enumerate(labels)}
 
 
+@jax.jit
+def _blend_points(blend, u):
+    """Blend positions at arc-length fractions u (one program per blend family)."""
+    return jax.vmap(lambda x: blend_frame(blend, x * blend.length).pos)(u)
+
+
 def figures(preset: str, out: Path) -> dict:
     """Figs. 6, 7, 8, 10, 11 as PNG files in ``out``; returns name -> path."""
     out.mkdir(parents=True, exist_ok=True)
@@ -85,8 +91,7 @@ def figures(preset: str, out: Path) -> dict:
     curves = {}
     for b in BLENDS:
         blend = make_blend(b, D, D)
-        sig = jnp.linspace(0.0, blend.length, 301)
-        curves[b] = np.asarray(jax.vmap(lambda s: blend_frame(blend, s).pos)(sig))
+        curves[b] = np.asarray(_blend_points(blend, jnp.linspace(0.0, 1.0, 301)))
     paths["fig6_blends"] = out / "fig6_blends.png"
     save_figure(plotting.blends_overlay(curves), paths["fig6_blends"])
 

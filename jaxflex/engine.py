@@ -18,6 +18,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxflex import trees
 from jaxflex.linearized import Tables
 from jaxflex.metrics import batch_metrics
 from jaxflex.robot import Robot
@@ -40,8 +41,7 @@ def run(tables: Tables, samples: MotionSamples, tf, dwell, robot: Robot, grid: G
 
 def run_many(jobs: Sequence[tuple], grid: Grid, second_order: bool = True) -> Series:
     """Rollouts of the jobs (tables, samples, tf, dwell, robot), stacked along a leading axis."""
-    out = [run(*job, grid=grid, second_order=second_order) for job in jobs]
-    return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *out)
+    return trees.stack([run(*job, grid=grid, second_order=second_order) for job in jobs])
 
 
 def metrics_of(series: Series) -> dict:

@@ -26,6 +26,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxflex import trees
 from jaxflex import model as mdl
 from jaxflex.path import Path, path_frame
 from jaxflex.robot import Robot, joint_motion
@@ -208,8 +209,8 @@ def coeffs_many(robot: Robot, qa, qa1, qa2) -> Coeffs:
         qs = [np.concatenate([q, np.repeat(q[:1], pad, axis=0)]) for q in qs]    # valid filler poses
         r = jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype=float), r)
         parts = [_coeffs_chunk(r, *(q[i:i + COEFF_CHUNK] for q in qs)) for i in range(0, n + pad, COEFF_CHUNK)]
-        out.append(jax.tree_util.tree_map(lambda *a: jnp.concatenate(a)[:n], *parts))
-    return jax.tree_util.tree_map(lambda *a: jnp.stack(a), *out) if stacked else out[0]
+        out.append(trees.concatenate(parts, length=n))
+    return trees.stack(out) if stacked else out[0]
 
 
 _table_poses = jax.jit(table_poses)        # one program per blend family, shared by every caller
@@ -221,7 +222,7 @@ def robot_table_poses(robot: Robot, path: Path):
     if np.ndim(robot.payload) == 0:
         return _table_poses(robot, path)
     poses = [_table_poses(r, path) for r in _robot_list(robot)]
-    return tuple(jnp.stack(a) for a in zip(*poses))
+    return tuple(trees.stack(a) for a in zip(*poses))
 
 
 def path_tables(robot: Robot, path: Path) -> Tables:

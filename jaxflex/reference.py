@@ -18,12 +18,14 @@ on step boundaries and are integrated exactly to the method's order.
 """
 from __future__ import annotations
 
+import functools
 from typing import Sequence
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxflex import trees
 from jaxflex import model as mdl
 from jaxflex.path import Path
 from jaxflex.profiles import Profile, profile_eval
@@ -32,8 +34,10 @@ from jaxflex.simulate import Series, low_mode_acceleration
 from jaxflex.trajectory import task_from_arc
 
 
+@functools.partial(jax.jit, static_argnames="side")
 def _joint_samples(robot: Robot, path: Path, profile: Profile, tf, eta, side):
-    """Motor angles, rates, accelerations (T, 2) each at normalized times eta (T,)."""
+    """Motor angles, rates, accelerations (T, 2) each at normalized times eta (T,) (one program per
+    path family, law kind and sample count)."""
     v = profile_eval(profile, jnp.asarray(eta), side)
     s, ds, dds = v.s * path.length, v.ds * path.length / tf, v.dds * path.length / tf**2
     x, xd, xdd, _ = task_from_arc(path, s, ds, dds, jnp.zeros_like(s))
@@ -113,10 +117,10 @@ def reference_rollout(robot: Robot, path: Path | Sequence[Path], profile: Profil
         raise ValueError(f"{len(paths)} paths for {len(profiles)} motion laws: give one path or one per law")
     tfa = jnp.asarray(tf)
     k = np.arange(n)
-    samples = [tuple(_joint_samples(robot, pth, p, tfa, eta, side)
+    samples = [tuple(_joint_samples(robot, pth, p, tfa, jnp.asarray(eta), side=side)
                      for eta, side in ((k / n, 1), ((k + 0.5) / n, 1), ((k + 1) / n, -1)))
                for pth, p in zip(paths, profiles)]
-    samples = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *samples)
+    samples = trees.stack(samples)
     payload = jnp.asarray(robot.payload, dtype=float)
     run = lambda m, smp: _reference(robot.replace(payload=m), smp, tfa, jnp.asarray(dwell), n, nd)
     if payload.ndim == 0:

@@ -14,6 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxflex import trees
 from jaxflex import checks, engine
 from jaxflex.blends import BLENDS
 from jaxflex.expm import squarings_for
@@ -67,7 +68,7 @@ def _coeffs(robot, payloads, qa, qa1, qa2):
     through the coefficient program every table builder shares (``linearized.coeffs_many``)."""
     shape = qa.shape[:2]
     flat = [jnp.reshape(a, (-1, 2)) for a in (qa, qa1, qa2)]
-    robots = jax.tree_util.tree_map(lambda *a: jnp.stack(a), *[robot.replace(payload=m) for m in payloads])
+    robots = trees.stack([robot.replace(payload=m) for m in payloads], dtype=float)
     values = coeffs_many(robots, *flat)
     return jax.tree_util.tree_map(lambda v: v.reshape(v.shape[:1] + shape + v.shape[2:]), values)
 
@@ -75,7 +76,7 @@ def _coeffs(robot, payloads, qa, qa1, qa2):
 def _sweep_series(values, breaks, lengths, tfs, dwell, robots, profiles, grid, second_order):
     """Every rollout (blend x law x case) through the evaluation engine (``jaxflex.engine``: one
     compiled program for every run), series stacked with leading axes (B, P, C); tables (C, B, ...)."""
-    stack = lambda items: jax.tree_util.tree_map(lambda *a: jnp.stack(a), *items)
+    stack = trees.stack
     laws = [make_profile(name) for name in profiles]
     out = []
     for i in range(breaks.shape[0]):

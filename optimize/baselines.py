@@ -17,6 +17,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxflex import trees
 from jaxflex import engine
 from jaxflex import model as mdl
 from jaxflex.linearized import path_tables
@@ -105,7 +106,7 @@ def model_set(robot: Robot, payloads: Sequence[float], *, stiffness=(1.0,), payl
                     r = r.replace(damping=jnp.asarray([0.0, 2 * damping_ratio / w1]))
                 robots.append(r)
                 labels.append(f"{m:g} kg x{ps:g}, E x{k:g}" + (f", zeta {damping_ratio:g}" if damping_ratio else ""))
-    stacked = jax.tree_util.tree_map(lambda *a: jnp.stack([jnp.asarray(v, dtype=float) for v in a]), *robots)
+    stacked = trees.stack(robots, dtype=float)
     return ModelSet(stacked, tuple(labels))
 
 

@@ -29,6 +29,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 
+from jaxflex import trees
 from jaxflex.designs import Design, design_rollout
 from jaxflex.metrics import metrics
 from jaxflex.path import Cycle
@@ -123,7 +124,7 @@ def objective(params: Params, robots: Robot, cycle: Cycle, tf, dwell, grid: Grid
 
 def stack_robots(robots) -> Robot:
     """Stack robots with equal static fields into one pytree with a leading axis."""
-    return jax.tree_util.tree_map(lambda *a: jnp.stack([jnp.asarray(v, dtype=float) for v in a]), *robots)
+    return trees.stack(robots, dtype=float)
 
 
 def law_objective(coef, tables, length, tf, dwell, grid: Grid, scales: Scales, *, order: int = 3,

@@ -31,6 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxflex import trees
 from jaxflex import checks
 from jaxflex.blends import BLENDS
 from jaxflex.designs import Design, design, design_path
@@ -80,7 +81,7 @@ def training_models(robot: Robot, payloads: Sequence[float], kind: str = "spanni
         return model_set(robot, payloads, stiffness=PERTURB_E, payload_scale=PERTURB_PAYLOAD)
     if kind == "spanning":
         sets = [model_set(robot, [m], stiffness=(k,), payload_scale=(p,)) for m in payloads for k, p in SPANNING]
-        robots = jax.tree_util.tree_map(lambda *a: jnp.concatenate(a), *[s.robots for s in sets])
+        robots = trees.concatenate([s.robots for s in sets])
         return ModelSet(robots, tuple(lab for s in sets for lab in s.labels))
     raise ValueError(f"unknown training set {kind!r}; choose one of {TRAINING_SETS}")
 

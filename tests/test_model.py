@@ -1,4 +1,6 @@
 """Elastodynamic model (paper Section 2): beams, assembly, dynamics, statics, natural frequencies."""
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -70,30 +72,39 @@ def pose(robot6):
     return igm(robot6, jnp.array([-0.1, 0.28]))
 
 
+@jax.jit
+def _closure_terms(robot, pose, qe, qad, qed):
+    """Constraint residual and Jacobians, W, and the acceleration terms at one state (one program)."""
+    q = mdl.full_coordinates(robot, pose, qe)
+    red = mdl.reduced(robot, pose, qe, qad, qed)
+    fdot = lambda qq: jax.jvp(lambda x: mdl.constraints(robot, x), (qq,), (red.qd,))[1]
+    gamma = jax.jvp(fdot, (q,), (red.qd,))[1]
+    return (mdl.constraints(robot, q), mdl.constraint_jacobians(robot, q), mdl.velocity_map(robot, q),
+            red.w_acc, gamma)
+
+
 def test_closed_form_passive_solves_constraints_and_w_matches_autodiff(robot6, pose):
     rng = np.random.default_rng(0)
     qe = jnp.asarray(rng.normal(scale=1e-4, size=12))
-    q = mdl.full_coordinates(robot6, pose, qe)
-    assert float(jnp.max(jnp.abs(mdl.constraints(robot6, q)))) < 1e-15
-    a, b, c = mdl.constraint_jacobians(robot6, q)
+    qad, qed = jnp.array([0.7, -1.1]), jnp.asarray(rng.normal(scale=1e-2, size=12))
+    res, (a, b, c), w, w_acc, gamma = _closure_terms(robot6, pose, qe, qad, qed)
+    assert float(jnp.max(jnp.abs(res))) < 1e-15
     assert a.shape == (8, 8) and b.shape == (8, 12) and c.shape == (8, 2)
     # W and w come from derivatives of the closed-form q_p(q_i); check them against the constraint
     # Jacobians of Eq. 19 (an independent route): A W_p + [C B] = 0 and A w_p + f_qq[q', q'] = 0.
-    w = mdl.velocity_map(robot6, q)
     np.testing.assert_allclose(a @ w[14:], -jnp.concatenate([c, b], axis=1), atol=1e-12)
     np.testing.assert_allclose(w[:14], np.eye(14), atol=0)
-    qad, qed = jnp.array([0.7, -1.1]), jnp.asarray(rng.normal(scale=1e-2, size=12))
-    red = mdl.reduced(robot6, pose, qe, qad, qed)
-    fdot = lambda qq: jax.jvp(lambda x: mdl.constraints(robot6, x), (qq,), (red.qd,))[1]
-    gamma = jax.jvp(fdot, (q,), (red.qd,))[1]
-    np.testing.assert_allclose(a @ red.w_acc[14:], -gamma, atol=1e-12 * float(jnp.max(jnp.abs(gamma))))
+    np.testing.assert_allclose(a @ w_acc[14:], -gamma, atol=1e-12 * float(jnp.max(jnp.abs(gamma))))
+
+
+_reduced = jax.jit(mdl.reduced)        # one program for the tests below (robot and state as arguments)
 
 
 def test_mass_matrix_symmetric_positive(robot6, pose):
     q = mdl.full_coordinates(robot6, pose, jnp.full(12, 1e-4))
     m = jax.jit(mdl.mass_matrix)(robot6, q)
     np.testing.assert_allclose(m, m.T, atol=1e-15)
-    red = jax.jit(mdl.reduced)(robot6, pose, jnp.full(12, 1e-4), jnp.zeros(2), jnp.zeros(12))
+    red = _reduced(robot6, pose, jnp.full(12, 1e-4), jnp.zeros(2), jnp.zeros(12))
     assert float(jnp.min(jnp.linalg.eigvalsh(red.mass))) > 0
 
 
@@ -105,7 +116,7 @@ def test_inverse_then_direct_dynamics_roundtrip(robot6, pose):
     qedd, tau = jax.jit(mdl.inverse_dynamics)(robot6, pose, qe, qad, qed, qadd)
     qadd2, qedd2 = jax.jit(mdl.direct_dynamics)(robot6, pose, qe, qad, qed, tau)
     # M_r mixes rigid (kg m^2) and axial-mode (kg) scales: cond(M_r) ~ 1e7 amplifies round-off
-    cond = float(jnp.linalg.cond(mdl.reduced(robot6, pose, qe, qad, qed).mass))
+    cond = float(np.linalg.cond(np.asarray(_reduced(robot6, pose, qe, qad, qed).mass)))
     # norm-wise backward-stable bound: |error| <~ eps cond(M_r) max|q_i''| (q_e'' ~ 1e3 x q_a'')
     tol = 1e-15 * cond * float(jnp.max(jnp.abs(qedd)))
     assert tol < 1e-3 * 12.0
@@ -120,9 +131,9 @@ def test_rigid_part_equals_independent_newton_euler(payload, rotor):
     robot = robot_preset("default", payload=payload, rotor_inertia=rotor)
     q = igm(robot, jnp.array([0.05, 0.27]))
     qd, qdd = jnp.array([2.0, -1.0]), jnp.array([-25.0, 40.0])
-    red = mdl.reduced(robot, q, jnp.zeros(12), qd, jnp.zeros(12))
+    red = _reduced(robot, q, jnp.zeros(12), qd, jnp.zeros(12))
     tau_model = red.mass[:2, :2] @ qdd + red.force[:2]
-    np.testing.assert_allclose(tau_model, rigid_torques(robot, q, qd, qdd), rtol=1e-11)
+    np.testing.assert_allclose(tau_model, jax.jit(rigid_torques)(robot, q, qd, qdd), rtol=1e-11)
 
 
 def test_rigid_limit_of_quasi_static_elastic_torques():
@@ -173,15 +184,20 @@ def _beam_theory_ee_compliance(robot, q):
     return np.stack([_beam_theory_deflection(robot, q, f) for f in np.eye(2)], axis=1)
 
 
+@jax.jit
+def _ee_compliance(robot, q):
+    """End-effector compliance J_e K^-1 J_e^T [m/N] of the assembled model with the motors locked."""
+    k = mdl.locked_stiffness(robot, q, jnp.zeros(12))
+    je = mdl.velocity_map(robot, mdl.full_coordinates(robot, q, jnp.zeros(12)))[-2:, 2:]
+    return je @ jnp.linalg.solve(k, je.T)
+
+
 def test_static_deflection_under_end_effector_force():
     robot = robot_preset("default", payload=6.0, gravity=(0.0, 0.0))
     q = igm(robot, jnp.array([0.08, 0.27]))
     x0 = mdl.ee_position(robot, q, jnp.zeros(12))
     eq = jax.jit(lambda f: mdl.ee_position(robot, q, mdl.static_equilibrium(robot, q, f)) - x0)
-    k = mdl.locked_stiffness(robot, q, jnp.zeros(12))
-    w = mdl.velocity_map(robot, mdl.full_coordinates(robot, q, jnp.zeros(12)))
-    je = w[-2:, 2:]
-    compliance = je @ jnp.linalg.solve(k, je.T)
+    compliance = _ee_compliance(robot, q)
     ref = _beam_theory_ee_compliance(robot, q)
     # the assembled stiffness matrix and the independent two-force-member analysis agree
     np.testing.assert_allclose(compliance, ref, rtol=1e-9, atol=1e-12 * np.abs(ref).max())
@@ -212,7 +228,9 @@ def test_gravity_sag_matches_beam_theory(robot6):
 # ---------------------------------------------------------------------------- dynamics invariants
 
 
+@functools.partial(jax.jit, static_argnames=("dt", "steps"))
 def _rk4_locked(robot, qa, qe0, qed0, dt, steps):
+    """RK4 of the full model with the motors locked at qa (one program for every robot and start)."""
     def acc(qe, qed):
         return mdl.inverse_dynamics(robot, qa, qe, jnp.zeros(2), qed, jnp.zeros(2))[0]
 
@@ -234,18 +252,17 @@ def test_energy_conserved_in_free_vibration_and_constraints_hold():
     qa = igm(robot, jnp.array([-0.1, 0.28]))
     qe0 = mdl.static_equilibrium(robot, qa, jnp.array([150.0, -80.0]))     # released from a load
     qed0 = jnp.asarray(np.random.default_rng(5).normal(scale=2e-3, size=12))
-    run = jax.jit(lambda: _rk4_locked(robot, qa, qe0, qed0, 2e-6, 6000))
-    qe, qed = run()
+    qe, qed = _rk4_locked(robot, qa, qe0, qed0, dt=2e-6, steps=1500)
 
     def energy(qe_, qed_):
         red = mdl.reduced(robot, qa, qe_, jnp.zeros(2), qed_)
         return 0.5 * qed_ @ red.mass[2:, 2:] @ qed_ + mdl.potential(robot, red.q)
 
-    e = jax.jit(jax.vmap(energy))(qe[::500], qed[::500])
-    e0 = energy(qe0, qed0)
+    e = jax.jit(jax.vmap(energy))(jnp.concatenate([qe0[None], qe[::250]]), jnp.concatenate([qed0[None], qed[::250]]))
+    e0, e = e[0], e[1:]
     assert float(jnp.max(jnp.abs(e - e0))) < 1e-6 * float(e0)     # RK4 at dt = 2 us: ~1e-8 drift
     # constraints stay at round-off along the run (closed-form passive coordinates)
-    res = jax.jit(jax.vmap(lambda x: mdl.constraints(robot, mdl.full_coordinates(robot, qa, x))))(qe[::250])
+    res = jax.jit(jax.vmap(lambda x: mdl.constraints(robot, mdl.full_coordinates(robot, qa, x))))(qe[::125])
     assert float(jnp.max(jnp.abs(res))) < 1e-15
     # the run really vibrates: elastic energy oscillates by a large fraction
     assert float(jnp.max(jnp.abs(qe[:, :3] - qe0[None, :3]))) > 0.3 * float(jnp.max(jnp.abs(qe0[:3])))
@@ -255,9 +272,9 @@ def test_damping_dissipates_energy():
     robot = robot_preset("default", payload=6.0, gravity=(0.0, 0.0), damping=(0.0, 2e-5))
     qa = igm(robot, jnp.array([-0.1, 0.28]))
     qe0 = mdl.static_equilibrium(robot, qa, jnp.array([150.0, -80.0]))
-    qe, qed = jax.jit(lambda: _rk4_locked(robot, qa, qe0, jnp.zeros(12), 2e-6, 3000))()
-    e = lambda a, b: mdl.potential(robot, mdl.full_coordinates(robot, qa, a)) + 0.5 * b @ mdl.reduced(
-        robot, qa, a, jnp.zeros(2), b).mass[2:, 2:] @ b
+    qe, qed = _rk4_locked(robot, qa, qe0, jnp.zeros(12), dt=2e-6, steps=1500)   # the program above
+    e = jax.jit(lambda a, b: mdl.potential(robot, mdl.full_coordinates(robot, qa, a)) + 0.5 * b @ mdl.reduced(
+        robot, qa, a, jnp.zeros(2), b).mass[2:, 2:] @ b)
     assert float(e(qe[-1], qed[-1])) < 0.999 * float(e(qe0, jnp.zeros(12)))
 
 
@@ -278,13 +295,13 @@ def path_points():
 ])
 def test_natural_frequencies_along_path(path_points, payload, k, lo, hi):
     robot = robot_preset("default", payload=payload)
-    freqs = jax.jit(jax.vmap(lambda x: mdl.modes_at_point(robot, x)))(path_points)
+    freqs = np.stack([mdl.modes_at_point(robot, x) for x in path_points])     # the library's one program
     assert np.all(np.asarray(freqs[:, k]) > lo) and np.all(np.asarray(freqs[:, k]) < hi), freqs[:, k]
 
 
 def test_locked_modes_are_mass_normalized(robot6, pose):
-    freqs, shapes = mdl.locked_modes(robot6, pose)
-    m = mdl.reduced(robot6, pose, mdl.static_equilibrium(robot6, pose), jnp.zeros(2), jnp.zeros(12)).mass[2:, 2:]
+    freqs, shapes = jax.jit(mdl.locked_modes)(robot6, pose)
+    m = _reduced(robot6, pose, jax.jit(mdl.static_equilibrium)(robot6, pose), jnp.zeros(2), jnp.zeros(12)).mass[2:, 2:]
     np.testing.assert_allclose(shapes.T @ m @ shapes, np.eye(12), atol=1e-9)
     assert np.all(np.diff(np.asarray(freqs)) >= 0)
 

@@ -47,7 +47,12 @@ def _series(robot, path, grid, law, tf=TF, dwell=DWELL):
 
 def _motors(robot, path, law, tf, t):
     """Motor angles, rates, accelerations (T, 2) at the times t from the rigid IGM of the path."""
-    v = profile_eval(make_profile(law), jnp.asarray(t / tf))
+    return _motors_jit(robot, path, make_profile(law), jnp.asarray(tf), jnp.asarray(t))
+
+
+@jax.jit
+def _motors_jit(robot, path, profile, tf, t):
+    v = profile_eval(profile, t / tf)
     L = path.length
     x, xd, xdd, _ = task_from_arc(path, v.s * L, v.ds * L / tf, v.dds * L / tf**2, jnp.zeros(len(t)))
     return jax.vmap(lambda a, b, c: joint_motion(robot, a, b, c))(x, xd, xdd)
