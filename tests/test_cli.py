@@ -1,4 +1,4 @@
-"""Every subcommand end to end through the console entry point (``jaxflex.cli:main``, what the
+"""Every subcommand end to end through the console entry point (``jaxflex.experiments.cli:main``, what the
 ``jaxflex`` script calls), on small settings: exit code, the JSON keys and values, the files written.
 
 The commands run in one process (the ``xdist_group`` marks keep the tests that share a program on
@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 from jax import monitoring
 
-from jaxflex.cli import main
+from jaxflex.experiments.cli import main
 from jaxflex.metrics import METRICS
 
 OPT = ["--payload", "6", "--tf", "0.43", "--steps", "2", "--train", "nominal"]

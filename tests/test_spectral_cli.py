@@ -4,7 +4,7 @@ import json
 import jax.numpy as jnp
 import numpy as np
 
-from jaxflex.cli import main
+from jaxflex.experiments.cli import main
 from jaxflex.spectral import dominant_frequencies, welch
 
 

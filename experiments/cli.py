@@ -1,4 +1,5 @@
-"""The ``jaxflex`` command line (SPEC 7). Each subcommand is a thin call into ``jaxflex.experiments``."""
+"""The ``jaxflex`` command line (SPEC 7), outside the core library: each subcommand is a thin call into
+the experiment scripts of this package (``jaxflex.experiments``), which call the library."""
 from __future__ import annotations
 
 import argparse
