@@ -176,7 +176,8 @@ def build_tables(robot: Robot, path: Path) -> Tables:
     return Tables(values=coeffs_at(robot, *table_poses(robot, path)), breaks=path.breaks)
 
 
-COEFF_CHUNK = 512        # poses per call of the shared coefficient program
+COEFF_CHUNK = 160        # poses per call of the shared coefficient program: one path table (sum(SEGMENT_NODES))
+                         # is one call, larger sets (sweeps, workspaces) a few (padding costs compute)
 
 
 @jax.jit
