@@ -26,8 +26,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxflex import trees
 from jaxflex import model as mdl
+from jaxflex import trees
 from jaxflex.path import Path, path_frame
 from jaxflex.robot import Robot, joint_motion
 

@@ -14,8 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxflex import trees
-from jaxflex import checks, engine
+from jaxflex import checks, engine, trees
 from jaxflex.blends import BLENDS
 from jaxflex.expm import squarings_for
 from jaxflex.linearized import Tables, coeffs_many, robot_table_poses
@@ -76,16 +75,19 @@ def _coeffs(robot, payloads, qa, qa1, qa2):
 def _sweep_series(values, breaks, lengths, tfs, dwell, robots, profiles, grid, second_order):
     """Every rollout (blend x law x case) through the evaluation engine (``jaxflex.engine``: one
     compiled program for every run), series stacked with leading axes (B, P, C); tables (C, B, ...)."""
-    stack = trees.stack
     laws = [make_profile(name) for name in profiles]
+    # per-run tables and lengths sliced on the host (eager jax indexing would dispatch a small
+    # program per leaf and run), then passed as device arrays like every other caller's tables
+    values, breaks, lengths = jax.tree_util.tree_map(np.asarray, (values, breaks, lengths))
     out = []
     for i in range(breaks.shape[0]):
-        tables = [Tables(values=jax.tree_util.tree_map(lambda v: v[c, i], values), breaks=breaks[i])
-                  for c in range(len(tfs))]
-        out.append(stack([stack([engine.run(tables[c], sample_motion(lengths[i], law, tfs[c], grid), tfs[c], dwell,
-                                            robots[c], grid, second_order) for c in range(len(tfs))])
-                          for law in laws]))
-    return stack(out)
+        tables = [Tables(values=jax.tree_util.tree_map(lambda v: jnp.asarray(v[c, i]), values),
+                         breaks=jnp.asarray(breaks[i])) for c in range(len(tfs))]
+        out.append(trees.stack([trees.stack([engine.run(tables[c], sample_motion(lengths[i], law, tfs[c], grid),
+                                                        tfs[c], dwell, robots[c], grid, second_order)
+                                             for c in range(len(tfs))])
+                                for law in laws]))
+    return trees.stack(out)
 
 
 def _stacked_tables(robot, cycle, payloads, blends, d, e, n):
