@@ -120,7 +120,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 def _enable_compilation_cache(jax) -> None:
     """Persistent XLA compilation cache (JAXFLEX_CACHE_DIR, default ~/.cache/jaxflex/jax; set it to
-    an empty string to disable): repeated CLI runs skip most compilation."""
+    an empty string to disable): repeated CLI runs skip most compilation. The durations of earlier
+    compilations and reproduce sections are kept beside it (jaxflex-timings.json) for the ETAs."""
     import os
 
     cache = os.environ.get("JAXFLEX_CACHE_DIR",
@@ -128,6 +129,9 @@ def _enable_compilation_cache(jax) -> None:
     if cache:
         jax.config.update("jax_compilation_cache_dir", cache)
         jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
+        from jaxflex import progress
+
+        progress.remember(os.path.join(cache, "jaxflex-timings.json"))    # ETAs of compilations
 
 
 def main(argv=None) -> int:

@@ -12,6 +12,7 @@ import numpy as np
 
 from . import convergence, kinematics, modes, vibration
 from . import vibration as vibration_study
+from jaxflex import progress
 from jaxflex.compiled import release_compiled, run_isolated
 
 from .io import provenance, resumable, table, write_json, write_text
@@ -37,7 +38,12 @@ def run(out: str = "results", quick: bool = False, vibration: bool = True, optim
     steps = 10000 if quick else 20000        # quick: the spectra's sample count (one compiled program)
     sections = []
     results = {}
+    plan = ["kinematics", "natural frequencies"]
+    plan += ["vibration study"] * with_vibration + ["full-model check"] * (with_vibration and not quick)
+    plan += ["optimization studies"] * optimize
+    tracker = _Sections(plan, quick)
 
+    tracker.next()
     print("== kinematics (paper Section 3: Tables 2, 5, 6; Figs. 6-8, 10, 11)", flush=True)
     for preset in ("default", "table6"):
         res = kinematics.run(preset, 1.0, out=str(fig_dir) if preset == "default" else None,
@@ -49,6 +55,7 @@ def run(out: str = "results", quick: bool = False, vibration: bool = True, optim
     release = (lambda: None) if quick else release_compiled
     release()
 
+    tracker.next()
     print("== natural frequencies along the path (paper Section 4)", flush=True)
     pts = 9 if quick else 41
     freq = [modes.run("default", m, pts, json_path=str(out / f"modes_{m:g}kg.json")) for m in (6.0, 0.1)]
@@ -68,12 +75,14 @@ def run(out: str = "results", quick: bool = False, vibration: bool = True, optim
     release()
 
     if with_vibration:
+        tracker.next()
         print("== vibration study (paper Section 4: Tables 7-11, Fig. 12)", flush=True)
         vib = resumable(out / "vibration.json", key, lambda: vibration_study.compute(quick=quick), "vibration")
         results["vibration"] = vib
         sections.append(_vibration_section(vib, fig_dir, out))
         release()
         if not quick:
+            tracker.next()
             print("== step convergence and full-model cross-check", flush=True)
             conv = {"dt": resumable(out / "convergence_dt.json", key,
                                     lambda: run_isolated(convergence.dt_study), "dt study")}
@@ -84,10 +93,12 @@ def run(out: str = "results", quick: bool = False, vibration: bool = True, optim
             sections.append(_convergence_section(conv, vib))
 
     if optimize:
+        tracker.next()
         print("== optimization study (beyond the paper)", flush=True)
         results["optimize"] = _optimization(out, quick, key)
         sections.append(_optimization_section(results["optimize"], out))
 
+    tracker.next()
     prov = provenance({"out": str(out), "quick": quick}, started)
     header = ["# jaxflex reproduction report", "",
               "Trajectory generation for high speed pick and place robots: every table and figure, "
@@ -100,6 +111,32 @@ def run(out: str = "results", quick: bool = False, vibration: bool = True, optim
     write_json(out / "provenance.json", provenance({"out": str(out), "quick": quick}, started))
     print(f"report: {out / 'REPORT.md'}")
     return results
+
+
+class _Sections:
+    """Progress of the run on stderr, one line per section: its number, the time so far and an ETA
+    from the durations of the same sections in an earlier run on this machine (remembered beside
+    the compilation cache, ``jaxflex.progress.remember``; a resumed section takes far less)."""
+
+    def __init__(self, plan: list, quick: bool):
+        self.plan, self.k, self.began = plan, -1, None
+        self.keys = [f"reproduce{' --quick' if quick else ''}: {name}" for name in plan]
+        self.bar = progress.Progress("reproduce", total=len(plan), unit="section")
+
+    def next(self) -> None:
+        now = time.perf_counter()
+        if self.k >= 0:
+            progress.record(self.keys[self.k], now - self.began)
+        self.k, self.began = self.k + 1, now
+        if self.k >= len(self.plan):
+            self.bar.done = len(self.plan)
+            self.bar.close("report")
+            return
+        self.bar.done = self.k
+        left = [progress.recorded(key) for key in self.keys[self.k:]]
+        eta = f", ETA ~{progress.clock(sum(left))} (earlier run)" if all(v is not None for v in left) else ""
+        self.bar.say(f"section {self.k + 1}/{len(self.plan)}: {self.plan[self.k]} "
+                     f"[{progress.clock(self.bar.elapsed())}{eta}]")
 
 
 # payloads [kg], tf [s], training models, motion-law coefficients. The design for both payloads trains

@@ -25,6 +25,7 @@ from jaxflex.linearized import build_tables
 from jaxflex.metrics import metrics
 from jaxflex.path import Cycle, Path, check_path_args, make_path
 from jaxflex.profiles import shaped
+from jaxflex.progress import Progress
 from jaxflex.robot import Robot
 from jaxflex.simulate import Grid, Series, check_grid, motion_samples, rollout
 from jaxflex.workspace import Workspace, workspace_tables
@@ -126,16 +127,18 @@ def sweep_designs(robot: Robot, cycle: Cycle, xs: Design, *, tf: float, dwell: f
     padded = Design(*(jnp.concatenate([v, jnp.repeat(v[-1:], pad, axis=0)]) for v in leaves))
     scalars = (jnp.asarray(tf, dtype=float), jnp.asarray(dwell, dtype=float))
     parts = [jax.tree_util.tree_map(lambda v: v[i:i + chunk], padded) for i in range(0, size + pad, chunk)]
+    bar = Progress(f"design sweep ({size} designs)", total=size, unit="design", enabled=progress)
     t0 = time.perf_counter()
-    compiled = _metrics_batch.lower(robot, cycle, jax.device_put(parts[0], shard), *scalars, grid=grid,
-                                    blend=blend, order=order, second_order=second_order).compile()
+    with bar.waiting("compiling the batched rollout", key=f"compile design sweep {chunk} {grid}"):
+        compiled = _metrics_batch.lower(robot, cycle, jax.device_put(parts[0], shard), *scalars, grid=grid,
+                                        blend=blend, order=order, second_order=second_order).compile()
     compile_s = time.perf_counter() - t0
     out, t0 = [], time.perf_counter()
     for i, part in enumerate(parts):
         res = compiled(robot, cycle, jax.device_put(part, shard), *scalars)
         out.append({k: np.asarray(v) for k, v in res.items()})
-        if progress:
-            print(f"  designs {min((i + 1) * chunk, size)}/{size}", flush=True)
+        bar.update(min((i + 1) * chunk, size))
+    bar.close()
     run_s = time.perf_counter() - t0
     mets = {k: np.concatenate([o[k] for o in out])[:size] for k in out[0]}
     for name, v in mets.items():

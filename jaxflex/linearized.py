@@ -36,8 +36,58 @@ from jaxflex.robot import Robot, joint_motion
 SEGMENT_NODES = (6, 48, 48, 48, 6)
 
 
+class SlowCoeffs(NamedTuple):
+    """The coefficients the rollout freezes over each coarse interval: mass, stiffness, damping and
+    the torque maps of the elastic state (leaves as in ``Coeffs``)."""
+
+    mass: jax.Array   # (ne, ne) M
+    m_ae: jax.Array   # (2, ne) coupling of q_e'' into the torques
+    k0: jax.Array     # (ne, ne)
+    k1: jax.Array
+    k2: jax.Array
+    c0: jax.Array     # (ne, ne) damping
+    c1: jax.Array     # (ne, ne) gyroscopic, per unit s'
+    tq0: jax.Array    # (2, ne)
+    tq1: jax.Array
+    tq2: jax.Array
+    tv0: jax.Array    # (2, ne)
+    tv1: jax.Array
+
+    def stiffness_damping(self, ds, dds):
+        """K and C (ne, ne) at path speed ds [m/s] and acceleration dds [m/s^2]."""
+        return self.k0 + self.k2 * ds**2 + self.k1 * dds, self.c0 + self.c1 * ds
+
+    def torque_maps(self, ds, dds):
+        """T_q and T_v (2, ne): torques per unit elastic displacement and velocity."""
+        return self.tq0 + self.tq2 * ds**2 + self.tq1 * dds, self.tv0 + self.tv1 * ds
+
+
+class FastCoeffs(NamedTuple):
+    """The coefficients the rollout takes at every fine node: forcing, rigid torque, the output
+    maps and the pose (leaves as in ``Coeffs``)."""
+
+    f0: jax.Array     # (ne,) forcing at rest (gravity)
+    f1: jax.Array     # (ne,) forcing per unit s''
+    f2: jax.Array     # (ne,) forcing per unit s'^2
+    t0: jax.Array     # (2,) rigid torque at rest
+    t1: jax.Array
+    t2: jax.Array
+    jx: jax.Array     # (2, ne) J = dX/dq_e
+    jx1: jax.Array    # (2, ne) dJ/dq_a . q_a,s
+    jx2: jax.Array    # (2, ne) d2J/dq_a2 [q_a,s, q_a,s] + dJ/dq_a . q_a,ss
+    qa: jax.Array     # (2,) the pose: motor angles [rad]
+    qa1: jax.Array    # (2,) dq_a/ds [rad/m]
+    qa2: jax.Array    # (2,) d2q_a/ds2 [rad/m^2]
+
+    def forcing(self, ds, dds):
+        """Elastic forcing f (ne,) [N] and rigid torque tau_r (2,) [N m] at path speed ds [m/s] and
+        acceleration dds [m/s^2]."""
+        return self.f0 + self.f2 * ds**2 + self.f1 * dds, self.t0 + self.t2 * ds**2 + self.t1 * dds
+
+
 class Coeffs(NamedTuple):
-    """Linearization coefficients at one pose (ne elastic coordinates); see module docstring."""
+    """Linearization coefficients at one pose (ne elastic coordinates); see module docstring. The
+    rollout uses them in two groups, ``slow()`` and ``fast()``."""
 
     mass: jax.Array   # (ne, ne) M
     m_ae: jax.Array   # (2, ne) coupling of q_e'' into the torques
@@ -63,6 +113,12 @@ class Coeffs(NamedTuple):
     qa: jax.Array     # (2,) the pose: motor angles [rad]
     qa1: jax.Array    # (2,) dq_a/ds [rad/m]
     qa2: jax.Array    # (2,) d2q_a/ds2 [rad/m^2]
+
+    def slow(self) -> SlowCoeffs:
+        return SlowCoeffs(*(getattr(self, k) for k in SlowCoeffs._fields))
+
+    def fast(self) -> FastCoeffs:
+        return FastCoeffs(*(getattr(self, k) for k in FastCoeffs._fields))
 
 
 def pose_coeffs(robot: Robot, qa, qa1, qa2) -> Coeffs:
@@ -148,6 +204,14 @@ class Tables(NamedTuple):
 
     values: Coeffs
     breaks: jax.Array
+
+    def slow(self) -> "Tables":
+        """The tables of the slow group only (``SlowCoeffs``)."""
+        return Tables(values=self.values.slow(), breaks=self.breaks)
+
+    def fast(self) -> "Tables":
+        """The tables of the fast group only (``FastCoeffs``)."""
+        return Tables(values=self.values.fast(), breaks=self.breaks)
 
 
 def _segment_nodes(breaks):
@@ -258,10 +322,8 @@ def interpolate(tables: Tables, s) -> Coeffs:
 
 def evaluate(c: Coeffs, ds, dds):
     """Mass, stiffness, damping, forcing and torque maps at path speed ds [m/s], acceleration dds."""
-    k = c.k0 + c.k2 * ds**2 + c.k1 * dds
-    cc = c.c0 + c.c1 * ds
-    f = c.f0 + c.f2 * ds**2 + c.f1 * dds
-    tq = c.tq0 + c.tq2 * ds**2 + c.tq1 * dds
-    tv = c.tv0 + c.tv1 * ds
-    tr = c.t0 + c.t2 * ds**2 + c.t1 * dds
+    slow, fast = c.slow(), c.fast()
+    k, cc = slow.stiffness_damping(ds, dds)
+    tq, tv = slow.torque_maps(ds, dds)
+    f, tr = fast.forcing(ds, dds)
     return c.mass, k, cc, f, tq, tv, tr

@@ -18,6 +18,7 @@ on step boundaries and are integrated exactly to the method's order.
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 from typing import Sequence
 
@@ -29,6 +30,7 @@ from jaxflex import model as mdl
 from jaxflex import trees
 from jaxflex.path import Path
 from jaxflex.profiles import Profile, profile_eval
+from jaxflex.progress import Progress
 from jaxflex.robot import Robot, joint_motion
 from jaxflex.simulate import Series, low_mode_acceleration
 from jaxflex.trajectory import task_from_arc
@@ -89,7 +91,8 @@ def _outputs(robot, qa, qad, qadd, x, qedd, tau):
 
 
 def reference_rollout(robot: Robot, path: Path | Sequence[Path], profile: Profile | Sequence[Profile], tf: float,
-                      dwell: float = 0.1, dt: float = 1e-5, dwell_dt: float | None = None) -> Series:
+                      dwell: float = 0.1, dt: float = 1e-5, dwell_dt: float | None = None, *,
+                      progress: bool = True) -> Series:
     """Full nonlinear simulation of trajectories (motion over [0, tf] [s] then a dwell [s]) by RK4.
 
     ``profile`` is one motion law or a sequence of them, along ``path`` or along the matching
@@ -100,7 +103,8 @@ def reference_rollout(robot: Robot, path: Path | Sequence[Path], profile: Profil
     motion has a multiple of 8 steps; the dwell uses dwell_dt (default dt). Returns a ``Series`` like
     ``jaxflex.simulate.rollout`` with outputs at every step and leading axes (profile, payload) for
     the batched inputs that were given, so ``jaxflex.metrics.metrics`` applies (vmapped).
-    Each call compiles its program afresh (a slow, occasional cross-check; not cached).
+    Each call compiles its programs afresh (a slow, occasional cross-check; not cached); the steps
+    run in ``CHUNKS`` calls, with ``progress`` shown on stderr (elapsed time, ETA).
     """
     tf, dwell, dt = float(tf), float(dwell), float(dt)
     if not (tf > 0 and dwell > 0 and dt > 0):
@@ -120,43 +124,87 @@ def reference_rollout(robot: Robot, path: Path | Sequence[Path], profile: Profil
     samples = [tuple(_joint_samples(robot, pth, p, tfa, jnp.asarray(eta), side=side)
                      for eta, side in ((k / n, 1), ((k + 0.5) / n, 1), ((k + 1) / n, -1)))
                for pth, p in zip(paths, profiles)]
-    samples = trees.stack(samples)
-    payload = jnp.asarray(robot.payload, dtype=float)
-    run = lambda m, smp: _reference(robot.replace(payload=m), smp, tfa, jnp.asarray(dwell), n, nd)
-    if payload.ndim == 0:
-        out = _batched(run, payload, samples, False)
-    else:
-        out = _batched(run, payload, samples, True)
+    payload = np.asarray(robot.payload, dtype=float)
+    # one flat batch of runs (law-major, then payload), every input repeated per run
+    runs = [(float(m), smp) for smp in samples for m in np.atleast_1d(payload)]
+    masses = jnp.asarray([m for m, _ in runs])
+    samples = trees.stack([smp for _, smp in runs])
+    out = _integrate(robot, masses, samples, tfa, jnp.asarray(dwell), n, nd, progress)
+    shape = (len(profiles),) + payload.shape
+    out = jax.tree_util.tree_map(lambda a: a.reshape(shape + a.shape[1:]), out)
     return jax.tree_util.tree_map(lambda a: a[0], out) if single else out
 
 
-def _batched(run, payload, samples, over_payload):
-    per_profile = jax.vmap(run, in_axes=(None, 0))
-    if over_payload:
-        return jax.jit(jax.vmap(per_profile, in_axes=(0, None), out_axes=1))(payload, samples)
-    return jax.jit(per_profile)(payload, samples)
+CHUNKS = 40      # the RK4 scan runs in this many calls of one compiled program (progress, ETA)
 
 
-def _reference(robot, samples, tf, dwell, n, nd):
-    """Motion (n steps) and dwell (nd steps) in one scan: one trace of the RK4 step."""
+def _integrate(robot, masses, samples, tf, dwell, n, nd, progress):
+    """The batch of runs (leading axis B of ``masses`` [kg] and ``samples``): start, the RK4 steps
+    in CHUNKS calls of one program (progress on stderr with an ETA), the outputs at the ends."""
+    size = -(-(n + nd) // CHUNKS)
+    total = size * CHUNKS
+    with_robot = lambda m: robot.replace(payload=m)
+    plan = jax.jit(jax.vmap(lambda m, smp: _plan(with_robot(m), smp, tf, dwell, n, nd, total)))
+    advance = jax.jit(jax.vmap(lambda m, x, h, motor, i: _advance(with_robot(m), x, h, motor, i, size),
+                               in_axes=(0, 0, 0, 0, None)))
+    finish = jax.jit(jax.vmap(lambda m, smp, x_tf, x_end, ys: _finish(with_robot(m), smp, tf, dwell, n, nd,
+                                                                      x_tf, x_end, ys)))
+    bar = Progress(f"full model (RK4, h = {float(tf) / n * 1e6:.3g} us, {masses.shape[0]} runs)", total=CHUNKS,
+                   unit="chunk", enabled=progress)
+    with bar:
+        with bar.waiting("compiling the model's programs and starting"):
+            x, h, motor = jax.block_until_ready(plan(masses, samples))
+        x_tf, ys = None, []
+        for c in range(CHUNKS):
+            with bar.waiting("compiling the RK4 step, first chunk") if c == 0 else contextlib.nullcontext():
+                x_next, (states, y) = jax.block_until_ready(advance(masses, x, h, motor, jnp.asarray(c * size)))
+            if c * size <= n < (c + 1) * size:
+                x_tf = states[:, n - c * size]
+            x = x_next
+            ys.append(y)
+            bar.update(c + 1)
+        with bar.waiting("outputs at tf and at the end of the dwell"):
+            return jax.block_until_ready(finish(masses, samples, x_tf, x, jnp.concatenate(ys, axis=1)[:, :n + nd]))
+
+
+def _plan(robot, samples, tf, dwell, n, nd, total):
+    """Initial state (static equilibrium at the pick pose), step sizes (total,) (motion n steps,
+    dwell nd steps, then zero steps: the identity, padding to whole chunks) and motor motion
+    (total, 3, 3, 2) of every step."""
     h, hd = tf / n, dwell / nd
     starts, mids, ends = samples
-    end = tuple(a[-1] for a in ends)
-    qa_pick, qa_place, zero = starts[0][0], end[0], jnp.zeros(2)
-    qe0, q_star = jax.vmap(lambda qa: mdl.static_equilibrium(robot, qa))(jnp.stack([qa_pick, qa_place]))
+    qa_pick, qa_place, zero = starts[0][0], ends[0][-1], jnp.zeros(2)
+    qe0 = mdl.static_equilibrium(robot, qa_pick)
     x0 = jnp.concatenate([qe0, jnp.zeros_like(qe0)])
-    ne = qe0.shape[0]
-    hold = jnp.broadcast_to(jnp.stack([qa_place, zero, zero]), (nd, 3, 3, 2))    # motors hold the place
-    motion = jnp.stack([jnp.stack(v, axis=1) for v in (starts, mids, ends)], axis=1)       # (n, 3, 3, 2)
-    steps = jnp.concatenate([jnp.full(n, h), jnp.full(nd, hd)])
+    hold = jnp.broadcast_to(jnp.stack([qa_place, zero, zero]), (total - n, 3, 3, 2))   # motors hold the place
+    motion = jnp.stack([jnp.stack(v, axis=1) for v in (starts, mids, ends)], axis=1)      # (n, 3, 3, 2)
+    steps = jnp.concatenate([jnp.full(n, h), jnp.full(nd, hd), jnp.zeros(total - n - nd)])
+    return x0, steps, jnp.concatenate([motion, hold])
+
+
+def _advance(robot, x, steps, motor, start, size):
+    """``size`` RK4 steps from step ``start``: the state after them and, per step, the state at its
+    start and the outputs (e, e', e'', tau) there."""
+    h = jax.lax.dynamic_slice_in_dim(steps, start, size)
+    m = jax.lax.dynamic_slice_in_dim(motor, start, size)
 
     def step(x, inp):
         hk, st = inp
         x_new, (qedd, tau) = _rk4(robot, hk, x, st)
         return x_new, (x, _outputs(robot, *st[0], x, qedd, tau))
 
-    x_end, (states, ys) = jax.lax.scan(step, x0, (steps, jnp.concatenate([motion, hold])))
-    x_tf = states[n]
+    return jax.lax.scan(step, x, (h, m))
+
+
+def _finish(robot, samples, tf, dwell, n, nd, x_tf, x_end, ys):
+    """The ``Series`` from the per-step outputs ys (n + nd, 4, 2) and the states at tf and at the
+    end of the dwell."""
+    h, hd = tf / n, dwell / nd
+    starts, mids, ends = samples
+    end = tuple(a[-1] for a in ends)
+    qa_place, zero = end[0], jnp.zeros(2)
+    q_star = mdl.static_equilibrium(robot, qa_place)
+    ne = q_star.shape[0]
 
     def outputs_at(motor, x):
         qedd, tau = mdl.inverse_dynamics(robot, motor[0], x[:ne], motor[1], x[ne:], motor[2])

@@ -37,7 +37,7 @@ import numpy as np
 
 from jaxflex import linalg
 from jaxflex.expm import expm_fixed
-from jaxflex.linearized import Tables, interpolate, remainder
+from jaxflex.linearized import FastCoeffs, SlowCoeffs, Tables, interpolate, remainder
 from jaxflex.profiles import Profile, profile_eval
 
 
@@ -162,19 +162,9 @@ def low_mode_acceleration(mass, k, c, jx, q_star, x, cutoff_hz=LOW_MODES_HZ):
     return jx @ (li.T @ vec @ jnp.where(keep, ydd, 0.0))
 
 
-_SLOW = ("mass", "m_ae", "k0", "k1", "k2", "c0", "c1", "tq0", "tq1", "tq2", "tv0", "tv1")
-_FAST = ("f0", "f1", "f2", "t0", "t1", "t2", "jx", "jx1", "jx2", "qa", "qa1", "qa2")
-
-
-def _sub(tables: Tables, fields):
-    vals = tables.values._asdict()
-    return Tables(values={k: vals[k] for k in fields}, breaks=tables.breaks)
-
-
-def _interp(tables: Tables, s, fields):
-    sub = _sub(tables, fields)
-    out = jax.vmap(lambda x: interpolate(sub, x))(s)
-    return out
+def _interp(tables: Tables, s):
+    """Coefficients at the arc lengths s (N,): leaves with a leading axis N."""
+    return jax.vmap(lambda x: interpolate(tables, x))(s)
 
 
 class _Frozen(NamedTuple):
@@ -219,31 +209,19 @@ def _propagator(m, k, c, h, squarings):
     return t_mat @ phi_y @ t_inv, t_mat @ g0_y @ li, t_mat @ g1_y @ li
 
 
-def _stiffness_damping(c: dict, ds, dds):
-    """K and C (ne, ne) at path speed ds [m/s] and acceleration dds [m/s^2]."""
-    return c["k0"] + c["k2"] * ds**2 + c["k1"] * dds, c["c0"] + c["c1"] * ds
+def _frozen(c: SlowCoeffs, ds, dds, h, squarings) -> _Frozen:
+    k, cc = c.stiffness_damping(ds, dds)
+    tq, tv = c.torque_maps(ds, dds)
+    phi, g0, g1 = _propagator(c.mass, k, cc, h, squarings)
+    return _Frozen(phi, g0, g1, c.mass, linalg.inv(c.mass), k, cc, tq, tv, c.m_ae)
 
 
-def _frozen(c: dict, ds, dds, h, squarings) -> _Frozen:
-    k, cc = _stiffness_damping(c, ds, dds)
-    tq = c["tq0"] + c["tq2"] * ds**2 + c["tq1"] * dds
-    tv = c["tv0"] + c["tv1"] * ds
-    phi, g0, g1 = _propagator(c["mass"], k, cc, h, squarings)
-    return _Frozen(phi, g0, g1, c["mass"], linalg.inv(c["mass"]), k, cc, tq, tv, c["m_ae"])
-
-
-def _forcing(c: dict, ds, dds):
-    f = c["f0"] + c["f2"] * ds**2 + c["f1"] * dds
-    tr = c["t0"] + c["t2"] * ds**2 + c["t1"] * dds
-    return f, tr
-
-
-def _outputs(fz: _Frozen, c: dict, ds, dds, x, f, tr):
+def _outputs(fz: _Frozen, c: FastCoeffs, ds, dds, x, f, tr):
     """e, e', e'', tau at one instant from the elastic state x = [q_e, q_e']."""
     ne = fz.k.shape[0]
     q, qd = x[:ne], x[ne:]
     qdd = fz.minv @ (f - fz.c @ qd - fz.k @ q)
-    jx, jx1, jx2 = c["jx"], c["jx1"], c["jx2"]
+    jx, jx1, jx2 = c.jx, c.jx1, c.jx2
     e = jx @ q
     ed = jx @ qd + ds * (jx1 @ q)
     edd = jx @ qdd + 2.0 * ds * (jx1 @ qd) + (ds**2 * jx2 + dds * jx1) @ q
@@ -349,9 +327,10 @@ def _second_pass_forcing(robot, tables, x0, frozen, fast_start, fast_end, sample
     # ---- 1. coefficients linear in time between the coarse boundaries
     first, last = np.arange(nc) * m, np.arange(nc) * m + m - 1
     s_b = jnp.concatenate([samples.start[0][first], samples.end[0][-1:]])
-    cb = _interp(tables, s_b, ("mass", "k0", "k1", "k2", "c0", "c1"))
-    def mkc(c, ds, dds):
-        return (c["mass"],) + _stiffness_damping(c, ds, dds)
+    cb = _interp(tables.slow(), s_b)
+
+    def mkc(c: SlowCoeffs, ds, dds):
+        return (c.mass,) + c.stiffness_damping(ds, dds)
     at_b = lambda idx: jax.tree_util.tree_map(lambda a: a[idx], cb)
     m0, k0, c0 = jax.vmap(mkc)(at_b(np.arange(nc)), samples.start[1][first], samples.start[2][first])
     m1, k1, c1 = jax.vmap(mkc)(at_b(np.arange(1, nc + 1)), samples.end[1][last], samples.end[2][last])
@@ -377,8 +356,8 @@ def _second_pass_forcing(robot, tables, x0, frozen, fast_start, fast_end, sample
     x_left = x1_end[before]
     rem = jax.vmap(lambda qa, q1, q2, ds, dds, x, qdd: remainder(robot, qa, q1, q2, ds, dds, x, qdd))
     cat = lambda a, b: jnp.concatenate([a[right], b[before]])
-    r_all = rem(cat(fast_start["qa"], fast_end["qa"]), cat(fast_start["qa1"], fast_end["qa1"]),
-                cat(fast_start["qa2"], fast_end["qa2"]), cat(samples.start[1], samples.end[1]),
+    r_all = rem(cat(fast_start.qa, fast_end.qa), cat(fast_start.qa1, fast_end.qa1),
+                cat(fast_start.qa2, fast_end.qa2), cat(samples.start[1], samples.end[1]),
                 cat(samples.start[2], samples.end[2]), jnp.concatenate([x1[right], x_left]),
                 jnp.concatenate([qdd1_start[right], qdd1_end[before]]))   # one model evaluation site
     lin = lambda lo, hi, w: r_all[lo] * (1.0 - w)[:, None] + r_all[hi] * w[:, None]
@@ -404,16 +383,16 @@ def rollout(tables: Tables, samples: MotionSamples, tf, dwell, grid: Grid, robot
     hd = dwell / grid.dwell_steps
     # ---- coefficients: frozen per coarse interval, forcing and output maps per fine node
     s_mid, ds_mid, dds_mid = samples.mid
-    slow = _interp(tables, s_mid, _SLOW)
+    slow = _interp(tables.slow(), s_mid)
     frozen = jax.vmap(lambda c, a, b: _frozen(c, a, b, h, grid.squarings))(slow, ds_mid, dds_mid)
-    fast_start = _interp(tables, samples.start[0], _FAST)
-    fast_end = _interp(tables, samples.end[0], _FAST)
-    f_start, tr_start = jax.vmap(_forcing)(fast_start, *samples.start[1:])
-    f_end, tr_end = jax.vmap(_forcing)(fast_end, *samples.end[1:])
+    fast_start = _interp(tables.fast(), samples.start[0])
+    fast_end = _interp(tables.fast(), samples.end[0])
+    f_start, tr_start = jax.vmap(FastCoeffs.forcing)(fast_start, *samples.start[1:])
+    f_end, tr_end = jax.vmap(FastCoeffs.forcing)(fast_end, *samples.end[1:])
 
     # ---- initial static equilibrium at the pick pose (s = 0, at rest)
-    rest0 = interpolate(_sub(tables, _SLOW + _FAST), tables.breaks[0])
-    q0 = linalg.solve(rest0["k0"], rest0["f0"])
+    rest0 = interpolate(tables, tables.breaks[0])
+    q0 = linalg.solve(rest0.k0, rest0.f0)
     x0 = jnp.concatenate([q0, jnp.zeros_like(q0)])
     ne = q0.shape[0]
     if robot is not None or grid.continuous:
@@ -428,23 +407,23 @@ def rollout(tables: Tables, samples: MotionSamples, tf, dwell, grid: Grid, robot
     ys = jnp.concatenate([ys, y_end[None]], axis=0)
 
     # ---- dwell: motors hold the place pose, constant coefficients
-    rest = interpolate(_sub(tables, _SLOW + _FAST), tables.breaks[-1])
+    rest = interpolate(tables, tables.breaks[-1])
     zero = jnp.zeros(())
-    fz_d = _frozen(rest, zero, zero, hd, grid.squarings)
-    f_d, tr_d = _forcing(rest, zero, zero)
-    q_star = linalg.solve(rest["k0"], rest["f0"])
-    e_static = rest["jx"] @ q_star
+    fz_d = _frozen(rest.slow(), zero, zero, hd, grid.squarings)
+    f_d, tr_d = rest.fast().forcing(zero, zero)
+    q_star = linalg.solve(rest.k0, rest.f0)
+    e_static = rest.jx @ q_star
 
     b_d = jnp.broadcast_to(fz_d.g0 @ f_d, (grid.dwell_steps, x_tf.shape[0]))
     x_end, xd_states = _recurrence(fz_d.phi, x_tf, b_d, grid.unroll)
     xd_states = jnp.concatenate([xd_states, x_end[None]], axis=0)
-    yd = jax.vmap(lambda xx: _outputs(fz_d, rest, zero, zero, xx, f_d, tr_d))(xd_states)
+    yd = jax.vmap(lambda xx: _outputs(fz_d, rest.fast(), zero, zero, xx, f_d, tr_d))(xd_states)
 
-    ksym = 0.5 * (rest["k0"] + rest["k0"].T)
+    ksym = 0.5 * (rest.k0 + rest.k0.T)
 
     def energy(x):
         dq = x[:ne] - q_star
-        return 0.5 * x[ne:] @ rest["mass"] @ x[ne:] + 0.5 * dq @ ksym @ dq
+        return 0.5 * x[ne:] @ rest.mass @ x[ne:] + 0.5 * dq @ ksym @ dq
 
     t = jnp.arange(n + 1, dtype=float) * h
     td = tf + jnp.arange(grid.dwell_steps + 1, dtype=float) * hd
@@ -452,5 +431,5 @@ def rollout(tables: Tables, samples: MotionSamples, tf, dwell, grid: Grid, robot
                   t_dwell=td, e_dwell=yd[:, 0], ed_dwell=yd[:, 1], edd_dwell=yd[:, 2], tau_dwell=yd[:, 3],
                   e_static=e_static, energy_tf=energy(x_tf),
                   energy_dwell=jax.vmap(energy)(xd_states), state_tf=x_tf, dt=h, dt_dwell=hd,
-                  edd_tf_low=low_mode_acceleration(rest["mass"], rest["k0"], rest["c0"], rest["jx"], q_star,
+                  edd_tf_low=low_mode_acceleration(rest.mass, rest.k0, rest.c0, rest.jx, q_star,
                                                    x_tf))

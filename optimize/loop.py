@@ -12,6 +12,7 @@ state, the history and the step; a rerun with the same checkpoint path resumes f
 from __future__ import annotations
 
 import functools
+import hashlib
 import os
 import time
 from pathlib import Path
@@ -24,6 +25,7 @@ import optax
 from jax.flatten_util import ravel_pytree
 
 from jaxflex import checks
+from jaxflex.progress import Progress
 
 
 def value_and_grad_fwd(f: Callable) -> Callable:
@@ -83,17 +85,23 @@ def _optimizer():
     return optax.chain(optax.clip_by_global_norm(10.0), optax.scale_by_adam())
 
 
-def learning_rate_at(step: int, steps: int, learning_rate: float, decay: bool) -> float:
-    """The learning rate of update ``step`` (0-based): constant, or with ``decay`` a linear warm-up
-    over the first WARMUP of ``steps`` (Adam's first steps move every parameter by the full rate,
-    whatever its gradient) followed by a cosine decay to DECAY_FLOOR of the rate."""
+def schedule(steps: int, learning_rate: float, decay: bool) -> optax.Schedule:
+    """The learning-rate schedule (an optax schedule of the 0-based update index): constant, or with
+    ``decay`` a linear warm-up over the first WARMUP of ``steps`` (Adam's first steps move every
+    parameter by the full rate, whatever its gradient) from rate / warm-up steps to the rate,
+    followed by a cosine decay that reaches DECAY_FLOOR of the rate at index ``steps`` (one past the
+    last update)."""
     if not decay or steps <= 0:
-        return learning_rate
+        return optax.constant_schedule(learning_rate)
     warm = max(1, int(round(WARMUP * steps)))
-    if step < warm:
-        return learning_rate * (step + 1) / warm
-    c = 0.5 * (1.0 + np.cos(np.pi * min(step - warm, steps - warm) / max(1, steps - warm)))
-    return learning_rate * (DECAY_FLOOR + (1.0 - DECAY_FLOOR) * c)
+    return optax.join_schedules(
+        [optax.linear_schedule(learning_rate / warm, learning_rate, warm - 1),
+         optax.cosine_decay_schedule(learning_rate, max(1, steps - warm), alpha=DECAY_FLOOR)], [warm])
+
+
+def learning_rate_at(step: int, steps: int, learning_rate: float, decay: bool) -> float:
+    """The learning rate [-] of update ``step`` (0-based) under ``schedule(steps, learning_rate, decay)``."""
+    return float(schedule(steps, learning_rate, decay)(step))
 
 
 def _value_and_grad(f: Callable, args, mode: str):
@@ -125,6 +133,14 @@ def _adam_step(params, state, grad, learning_rate):
         direction, state = _optimizer().update(grad, state, params)
     step = jax.tree_util.tree_map(lambda u: -learning_rate * u, direction)
     return optax.apply_updates(params, step), state
+
+
+def _compile_key(f, params, args, mode) -> str:
+    """Name of the gradient program for the progress ETA memory: the objective and its argument
+    shapes (a program of other shapes compiles in another time)."""
+    shapes = [np.shape(a) for a in jax.tree_util.tree_leaves((params, args))]
+    digest = hashlib.sha1(repr((getattr(f, "__qualname__", repr(f)), mode, shapes)).encode()).hexdigest()[:12]
+    return f"compile gradient {digest}"
 
 
 def _update(params, state, args, learning_rate, *, f, mode):
@@ -159,17 +175,25 @@ def minimize(f: Callable, params0, *, args: tuple = (), steps: int = 100, learni
     params, state = params0, _optimizer().init(params0)
     history, times, step, best, best_value, best_aux = [], [], 0, params0, np.inf, None
     ckpt = Path(checkpoint) if checkpoint else None
-    if ckpt and ckpt.exists():
+    resumed = ckpt is not None and ckpt.exists()
+    if resumed:
         params, state, history, times, step, best, best_value = _load(ckpt, params0, state)
-        if progress:
-            print(f"  {label}: resumed at step {step} (best {best_value:.4g})", flush=True)
+    bar = Progress(label, total=steps, unit="step", enabled=progress, start=step)
+    if resumed:
+        bar.say(f"resumed at step {step} (best {best_value:.4g})")
     offset = times[-1] if times else 0.0
     started, last_gain, stopped = time.perf_counter(), step, "steps"
     while step < steps:
         # always a strongly typed float64 scalar: a change of type would retrace the update
         lr = jnp.asarray(learning_rate_at(step, steps, float(learning_rate), decay), dtype=jnp.float64)
-        new_params, state, value, aux = update(params, state, args, lr)
-        value = float(value)
+        if not bar.counting:       # the first step of this run: compiles the gradient unless done before
+            with bar.waiting(f"step {step + 1} (compiling the {mode}-mode gradient unless cached)",
+                             key=_compile_key(f, params, args, mode)):
+                new_params, state, value, aux = update(params, state, args, lr)
+                value = float(value)
+        else:
+            new_params, state, value, aux = update(params, state, args, lr)
+            value = float(value)
         if not np.isfinite(value):
             raise FloatingPointError(f"{label}: non-finite objective at step {step}")
         extra = () if monitor is None else tuple(float(v) for v in np.ravel(np.asarray(monitor(aux))))
@@ -180,9 +204,7 @@ def minimize(f: Callable, params0, *, args: tuple = (), steps: int = 100, learni
                 last_gain = step
             best, best_value, best_aux = params, value, aux
         params, step = new_params, step + 1
-        if progress and (step % 5 == 0 or step == 1):
-            print(f"  {label}: step {step}/{steps} objective {value:.4g} best {best_value:.4g} "
-                  f"({time.perf_counter() - started:.0f} s)", flush=True)
+        bar.update(step, f"objective {value:.4g}, best {best_value:.4g}")
         if ckpt and (step % 10 == 0 or step == steps):
             _save(ckpt, params, state, history, times, step, best, best_value)
         if target is not None and best_value < target:
@@ -191,6 +213,7 @@ def minimize(f: Callable, params0, *, args: tuple = (), steps: int = 100, learni
         if step - last_gain > patience:
             stopped = "plateau"
             break
+    bar.close(f"stopped: {stopped}, best {best_value:.4g}")
     if ckpt:
         _save(ckpt, params, state, history, times, step, best, best_value)
     if best_aux is None:                       # resumed at the end: evaluate the best once

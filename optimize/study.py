@@ -23,6 +23,7 @@ unseen) or ``perturbed`` (all nine models of the evaluation box per payload).
 """
 from __future__ import annotations
 
+import contextlib
 import functools
 import time
 from typing import NamedTuple, Sequence
@@ -38,6 +39,7 @@ from jaxflex.designs import Design, design, design_path
 from jaxflex.linearized import path_tables
 from jaxflex.path import Cycle, Path, make_path
 from jaxflex.profiles import PROFILES, make_profile, shaped
+from jaxflex.progress import Progress
 from jaxflex.robot import Robot, check_cycle_reachable
 from jaxflex.simulate import Grid, check_grid
 from jaxflex.sweep import default_grid
@@ -138,13 +140,25 @@ class PaperSweep(NamedTuple):
 
 
 def paper_sweep(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid: Grid, *, blends=BLENDS,
-                profiles=PROFILES) -> PaperSweep:
+                profiles=PROFILES, progress: bool = False) -> PaperSweep:
     """Every blend x paper law on the models at motion time tf [s]: one table build per blend and
     one compiled rollout program (the evaluators') for every law, blend and later evaluation on
-    the same number of models. Same model and metrics as ``jaxflex.sweep.run_sweep``."""
+    the same number of models. Same model and metrics as ``jaxflex.sweep.run_sweep``. ``progress``
+    on stderr."""
     blends, profiles = tuple(blends), tuple(profiles)
-    evaluators = {b: LawEvaluator(models, make_path(cycle, b, 0.025), tf, dwell, grid) for b in blends}
-    runs = [[evaluators[b](make_profile(p)) for p in profiles] for b in blends]
+    bar = Progress(f"paper combinations on {len(models.labels)} model(s)", total=len(blends) * len(profiles),
+                   unit="combination", enabled=progress)
+    evaluators, runs = {}, []
+    with bar:
+        for b in blends:
+            with bar.waiting(f"{b} path tables") if not bar.counting else contextlib.nullcontext():
+                evaluators[b] = LawEvaluator(models, make_path(cycle, b, 0.025), tf, dwell, grid)
+            runs.append([])
+            for p in profiles:
+                with bar.waiting(f"{b}/{p} (compiling the rollout unless cached)") if not bar.counting \
+                        else contextlib.nullcontext():
+                    runs[-1].append(evaluators[b](make_profile(p)))
+                bar.update(note=f"{b}/{p}")
     mets = {k: np.stack([np.stack([r[k] for r in row]) for row in runs]) for k in runs[0][0]}
     return PaperSweep(mets, blends, profiles, evaluators)
 
@@ -236,7 +250,7 @@ def optimize_design(robot: Robot, cycle: Cycle, payloads: Sequence[float] = (6.0
     # the paper sweep on the training models: it gives the best combination (nominal models), the
     # torque bounds and the objective's scales (every training model) with one rollout program
     models = training_models(robot, payloads, train)
-    sweep = paper_sweep(models, cycle, tf, dwell, grid)
+    sweep = paper_sweep(models, cycle, tf, dwell, grid, progress=progress)
     nominal = nominal_indices(models, robot, payloads)
     paper = {k: v[..., nominal] for k, v in sweep.metrics.items()}                 # (B, P, C)
     i, j = best_combination(paper["dwell_residual_mm"])
@@ -295,7 +309,15 @@ def optimize_design(robot: Robot, cycle: Cycle, payloads: Sequence[float] = (6.0
     for k, s in sets.items():
         evaluators[k]["optimized"] = (evaluators[k]["paper"] if paths["optimized"] is paths["paper"]
                                       else LawEvaluator(s, paths["optimized"], tf, dwell, grid, chunk=chunk))
-    evaluations = {k: {name: evaluators[k][c.path](c.law) for name, c in candidates.items()} for k in sets}
+    bar = Progress(f"baselines and the optimized design on {sum(len(s.labels) for s in sets.values())} models",
+                   total=len(sets) * len(candidates), unit="evaluation", enabled=progress)
+    evaluations = {}
+    with bar:
+        for k in sets:
+            evaluations[k] = {}
+            for name, c in candidates.items():
+                evaluations[k][name] = evaluators[k][c.path](c.law)
+                bar.update(note=f"{k}: {name}")
     return DesignStudy(payloads, tf, blend, law, x, coef, result, train, models.labels, candidates, paths, evaluations,
                        {k: s.labels for k, s in sets.items()}, paper, torque_bound, limits, freqs, grid,
                        time.time() - started, evaluators, setup_s)

@@ -109,8 +109,8 @@ def test_optimize_command_writes_its_outputs_and_resumes(tmp_path, capsys):
     for i in (0, 1234, 4300):
         np.testing.assert_allclose(rows[i, 3:], np.asarray(igm(robot, rows[i, 1:3])), atol=1e-9)
     # the rerun with the same directory resumes at step 2 and ends with the same design
-    out, _ = _run(["optimize", *OPT, "--out", out_dir, "--json", j2], capsys)
-    assert "resumed at step 2" in out
+    _, err = _run(["optimize", *OPT, "--out", out_dir, "--json", j2], capsys)
+    assert "resumed at step 2" in err
     rec2 = json.loads(j2.read_text())
     assert rec2["history"] == rec["history"] and rec2["design"] == rec["design"]
     assert rec2["laws"]["optimized"]["dwell_residual_mm"] == rec["laws"]["optimized"]["dwell_residual_mm"]

@@ -23,7 +23,7 @@ from jaxflex import model as mdl
 from jaxflex.linearized import evaluate, interpolate, path_pose, path_tables, pose_coeffs
 from jaxflex.path import make_path
 from jaxflex.robot import cycle_preset, robot_preset
-from jaxflex.simulate import _forcing, _frozen, _propagator
+from jaxflex.simulate import _frozen, _propagator
 
 
 @pytest.fixture(scope="module")
@@ -98,15 +98,14 @@ def test_tables_interpolate_the_coefficients_between_nodes(setup):
 
 
 def test_rollout_uses_the_same_polynomial_in_the_path_motion(setup):
-    """The rollout's frozen system and forcing (``simulate``) are the coefficients' polynomial in
-    (s', s'') of ``linearized.evaluate``."""
+    """The rollout's frozen system and forcing (``simulate``, from the slow and fast coefficient
+    groups) are the coefficients' polynomial in (s', s'') of ``linearized.evaluate``."""
     _, _, tables = setup
     c = jax.tree_util.tree_map(lambda a: a[70], tables.values)
-    cd = c._asdict()
     for ds, dds in ((0.0, 0.0), (1.7, 9.0), (-0.4, -25.0)):
         m, k, cc, f, tq, tv, tr = evaluate(c, ds, dds)
-        fz = _frozen(cd, jnp.asarray(ds), jnp.asarray(dds), 1e-4, 8)
-        f2, tr2 = _forcing(cd, jnp.asarray(ds), jnp.asarray(dds))
+        fz = _frozen(c.slow(), jnp.asarray(ds), jnp.asarray(dds), 1e-4, 8)
+        f2, tr2 = c.fast().forcing(jnp.asarray(ds), jnp.asarray(dds))
         for name, ours, ref in (("K", fz.k, k), ("C", fz.c, cc), ("T_q", fz.tq, tq), ("T_v", fz.tv, tv),
                                 ("M", fz.mass, m), ("M_ae", fz.m_ae, c.m_ae), ("f", f2, f), ("tau_r", tr2, tr)):
             np.testing.assert_allclose(np.asarray(ours), np.asarray(ref), rtol=1e-13,

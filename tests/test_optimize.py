@@ -130,6 +130,21 @@ def test_minimize_reuses_its_compilation_for_new_argument_values():
     np.testing.assert_allclose(b.params, [-1.0, 0.5], atol=1e-2)
 
 
+def test_learning_rate_schedule_warms_up_then_decays_to_the_floor():
+    """The optax schedule: linear warm-up over the first 10 % of the steps from rate/warm to the
+    rate, cosine decay reaching DECAY_FLOOR x rate one past the last step; constant without decay."""
+    from jaxflex.optimize.loop import DECAY_FLOOR, learning_rate_at
+
+    lr, steps = 0.05, 100
+    rates = np.array([learning_rate_at(k, steps, lr, True) for k in range(steps + 1)])
+    np.testing.assert_allclose(rates[:10], lr * np.arange(1, 11) / 10, rtol=1e-12)     # warm-up
+    np.testing.assert_allclose(rates[10], lr, rtol=1e-12)
+    assert np.all(np.diff(rates[10:]) < 0)                                             # decays
+    np.testing.assert_allclose(rates[55], lr * (DECAY_FLOOR + (1 - DECAY_FLOOR) / 2), rtol=1e-12)  # half-way
+    np.testing.assert_allclose(rates[steps], DECAY_FLOOR * lr, rtol=1e-12)
+    assert learning_rate_at(37, steps, lr, False) == lr
+
+
 def test_minimize_does_not_stop_early_on_negative_objectives():
     """Log-scale objectives cross zero: the plateau test must still see progress below zero."""
     f = lambda p: (jnp.log(1e-6 + jnp.sum((p - 3.0) ** 2)), {})
