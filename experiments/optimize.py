@@ -18,6 +18,7 @@ from jaxflex.path import path_frame
 from jaxflex.profiles import profile_eval, shaped
 from jaxflex.robot import cycle_preset, igm, robot_preset
 from jaxflex.trajectory import task_from_arc
+from jaxflex.optimize.baselines import ModelId
 from jaxflex.optimize.cycle_time import TORQUE_TOL
 from jaxflex.optimize.study import BLEND_FAMILY, optimize_design
 from jaxflex.optimize.study import verify as verify_trajectories
@@ -96,7 +97,7 @@ def milestones(study, factors=(5.0, 10.0)) -> dict:
     hist, times = study.result.history, list(study.result.times)
     best = next(k for k in study.evaluations["nominal"] if k.endswith("(best paper)"))
     ref = study.evaluations["nominal"][best]["dwell_residual_mm"]
-    idx = [study.train_labels.index(f"{m:g} kg x1, E x1") for m in study.payloads]
+    idx = [study.train_models.index(ModelId(m)) for m in study.payloads]
     out = {}
     for factor in factors:
         hit = next((k for k, row in enumerate(hist)
@@ -230,7 +231,7 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, steps=100, n_coef=6, tra
            "train": study.train, "design": design_record(study),
            "laws": summary(study), "torque_bound_nm": study.torque_bound.tolist(),
            "ruckig_limits": study.ruckig_limits, "first_mode_hz": list(study.first_mode_hz),
-           "model_sets": {k: list(v) for k, v in study.sets.items()},
+           "model_sets": {k: [i.label for i in v] for k, v in study.sets.items()},
            "history": [list(h) for h in study.result.history], "steps_run": study.result.steps_run,
            "stopped": study.result.stopped, "optimize_s": study.result.wall_s,
            "step_times_s": list(study.result.times), "milestones": milestones(study),

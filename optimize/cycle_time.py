@@ -98,7 +98,7 @@ def cycle_time_study(robot: Robot, cycle: Cycle, payload: float = 6.0, tf_ref: f
     bounds = torque_bounds(models, cycle, tf_ref, dwell, grid, ref_eval)       # per training model
     chunk = len(models.labels)       # every evaluator in batches of this size: one rollout program
     perturbed = model_set(robot, [payload], stiffness=PERTURB_E, payload_scale=PERTURB_PAYLOAD)
-    i_nominal = int(nominal_indices(perturbed, robot, [payload])[0])      # the nominal model is one of them
+    i_nominal = int(nominal_indices(perturbed, [payload])[0])      # the nominal model is one of them
     paper_perturbed = LawEvaluator(perturbed, make_path(cycle, blend, 0.025), tf_ref, dwell, grid, chunk=chunk)
     target_perturbed = float(np.max(paper_perturbed(make_profile(law))["dwell_residual_mm"]))
     params = encode(cycle, start_design(cycle, n_coef))

@@ -24,7 +24,7 @@ unseen) or ``perturbed`` (all nine models of the evaluation box per payload).
 from __future__ import annotations
 
 import contextlib
-import functools
+import dataclasses
 import time
 from typing import NamedTuple, Sequence
 
@@ -45,7 +45,7 @@ from jaxflex.simulate import Grid, check_grid
 from jaxflex.sweep import default_grid
 from jaxflex.workspace import Workspace, build_workspace
 
-from .baselines import LawEvaluator, ModelSet, model_set, place_first_mode_hz, ruckig_samples, shaper_profiles
+from .baselines import LawEvaluator, ModelId, ModelSet, model_set, place_first_mode_hz, ruckig_samples, shaper_profiles
 from .loop import OptResult, minimize
 from .objective import TORQUE_WEIGHT, Params, Scales, decode, encode, law_objective, objective
 
@@ -84,7 +84,7 @@ def training_models(robot: Robot, payloads: Sequence[float], kind: str = "spanni
     if kind == "spanning":
         sets = [model_set(robot, [m], stiffness=(k,), payload_scale=(p,)) for m in payloads for k, p in SPANNING]
         robots = trees.concatenate([s.robots for s in sets])
-        return ModelSet(robots, tuple(lab for s in sets for lab in s.labels))
+        return ModelSet(robots, tuple(i for s in sets for i in s.ids))
     raise ValueError(f"unknown training set {kind!r}; choose one of {TRAINING_SETS}")
 
 
@@ -97,7 +97,7 @@ class Candidate(NamedTuple):
 
 class DesignStudy(NamedTuple):
     """Everything the study measured. ``evaluations[set][candidate]`` is a metrics dict name -> (K,)
-    array over that set's models; ``sets`` maps a set name to its model labels; ``paths`` holds the
+    array over that set's models; ``sets`` maps a set name to its models' ``ModelId``; ``paths`` holds the
     best paper path ("paper") and the optimized one ("optimized")."""
 
     payloads: tuple
@@ -108,7 +108,7 @@ class DesignStudy(NamedTuple):
     coef: np.ndarray
     result: OptResult
     train: str
-    train_labels: tuple         # the training models (the optimizer's history records their dwell residuals)
+    train_models: tuple         # ModelId of each training model (the optimizer's history records their dwell residuals)
     candidates: dict            # name -> Candidate
     paths: dict                 # "paper" / "optimized" -> Path
     evaluations: dict
@@ -163,16 +163,14 @@ def paper_sweep(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid: G
     return PaperSweep(mets, blends, profiles, evaluators)
 
 
-def nominal_indices(models: ModelSet, robot: Robot, payloads: Sequence[float]) -> np.ndarray:
-    """Index in ``models`` of the nominal model (robot's stiffness, that payload) of each payload."""
-    m, young = np.asarray(models.robots.payload), np.asarray(models.robots.young)
+def nominal_indices(models: ModelSet, payloads: Sequence[float]) -> np.ndarray:
+    """Index in ``models`` of the nominal model (``ModelId.nominal``) of each payload [kg]."""
     out = []
     for p in payloads:
-        hit = np.flatnonzero((m == p) & (young == float(robot.young)))
-        if not hit.size:
-            raise ValueError(f"no nominal {p:g} kg model among {models.labels}")
-        out.append(int(hit[0]))
-    return np.asarray(out)
+        if ModelId(float(p)) not in models.ids:
+            raise ValueError(f"no nominal {p:g} kg model among {list(models.labels)}")
+        out.append(models.index(ModelId(float(p))))
+    return np.asarray(out, dtype=int)
 
 
 def best_combination(dwell_residual) -> tuple[int, int]:
@@ -251,7 +249,7 @@ def optimize_design(robot: Robot, cycle: Cycle, payloads: Sequence[float] = (6.0
     # torque bounds and the objective's scales (every training model) with one rollout program
     models = training_models(robot, payloads, train)
     sweep = paper_sweep(models, cycle, tf, dwell, grid, progress=progress)
-    nominal = nominal_indices(models, robot, payloads)
+    nominal = nominal_indices(models, payloads)
     paper = {k: v[..., nominal] for k, v in sweep.metrics.items()}                 # (B, P, C)
     i, j = best_combination(paper["dwell_residual_mm"])
     blend, law = sweep.blends[i], sweep.profiles[j]
@@ -318,27 +316,42 @@ def optimize_design(robot: Robot, cycle: Cycle, payloads: Sequence[float] = (6.0
             for name, c in candidates.items():
                 evaluations[k][name] = evaluators[k][c.path](c.law)
                 bar.update(note=f"{k}: {name}")
-    return DesignStudy(payloads, tf, blend, law, x, coef, result, train, models.labels, candidates, paths, evaluations,
-                       {k: s.labels for k, s in sets.items()}, paper, torque_bound, limits, freqs, grid,
+    return DesignStudy(payloads, tf, blend, law, x, coef, result, train, models.ids, candidates, paths, evaluations,
+                       {k: s.ids for k, s in sets.items()}, paper, torque_bound, limits, freqs, grid,
                        time.time() - started, evaluators, setup_s)
 
 
-@functools.lru_cache(maxsize=None)
-def _design_objective(grid: Grid, blend: str = BLEND_FAMILY, order: int = 3, torque_weight: float = TORQUE_WEIGHT):
-    """The design objective for one grid, one function object per static configuration (so that
-    ``minimize`` compiles once for every tf, payload set and scale of the same shapes)."""
-    def f(params, robots, cycle, tf, dwell, scales, workspaces):
-        return objective(params, robots, cycle, tf, dwell, grid, scales, blend=blend, order=order,
-                         torque_weight=torque_weight, workspaces=workspaces)
-    return f
+@dataclasses.dataclass(frozen=True)
+class DesignObjective:
+    """The design objective (``objective.objective``) for one grid and static configuration: a
+    hashable value, so equal configurations are one static argument of the optimizer's compiled
+    program (it compiles once for every tf, payload set and scale of the same shapes).
+
+    Called as f(params, robots, cycle, tf, dwell, scales, workspaces) -> (J, per-model terms)."""
+
+    grid: Grid
+    blend: str = BLEND_FAMILY
+    order: int = 3
+    torque_weight: float = TORQUE_WEIGHT
+
+    def __call__(self, params, robots, cycle, tf, dwell, scales, workspaces):
+        return objective(params, robots, cycle, tf, dwell, self.grid, scales, blend=self.blend, order=self.order,
+                         torque_weight=self.torque_weight, workspaces=workspaces)
 
 
-@functools.lru_cache(maxsize=None)
-def _law_objective(grid: Grid, order: int = 3, torque_weight: float = TORQUE_WEIGHT):
-    def f(coef, tables, length, tf, dwell, scales, robots):
-        return law_objective(coef, tables, length, tf, dwell, grid, scales, order=order, robots=robots,
-                             torque_weight=torque_weight)
-    return f
+@dataclasses.dataclass(frozen=True)
+class LawObjective:
+    """The motion-law objective on a fixed path (``objective.law_objective``) for one grid.
+
+    Called as f(coef, tables, length, tf, dwell, scales, robots) -> (J, per-model terms)."""
+
+    grid: Grid
+    order: int = 3
+    torque_weight: float = TORQUE_WEIGHT
+
+    def __call__(self, coef, tables, length, tf, dwell, scales, robots):
+        return law_objective(coef, tables, length, tf, dwell, self.grid, scales, order=self.order, robots=robots,
+                             torque_weight=self.torque_weight)
 
 
 def train_design(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid: Grid, scales: Scales,
@@ -365,7 +378,7 @@ def design_objective(models: ModelSet, cycle: Cycle, tf: float, dwell: float, gr
     if workspaces is None:
         workspaces = build_workspace(models.robots, cycle)
     args = (models.robots, cycle, _host_scalar(tf), _host_scalar(dwell), _canonical(scales), workspaces)
-    return _design_objective(grid), args
+    return DesignObjective(grid), args
 
 
 def _host_scalar(v):
@@ -398,7 +411,7 @@ def law_objective_args(models: ModelSet, path: Path, tf: float, dwell: float, gr
     tables = path_tables(models.robots, path) if tables is None else tables
     args = (tables, jnp.asarray(path.length, dtype=float), _host_scalar(tf), _host_scalar(dwell), _canonical(scales),
             models.robots)
-    return _law_objective(grid), args
+    return LawObjective(grid), args
 
 
 def _check_training(tf, dwell, steps, learning_rate):

@@ -232,7 +232,7 @@ def test_paper_sweep_on_training_models_matches_run_sweep_and_chunks_do_not_chan
     models = training_models(robot, [6.0], "spanning")
     sweep = paper_sweep(models, cycle, TF, DWELL, grid, blends=blends, profiles=laws)
     res = run_sweep(robot, cycle, [Case(6.0, TF)], blends=blends, profiles=laws, grid=grid)
-    i = int(nominal_indices(models, robot, [6.0])[0])
+    i = int(nominal_indices(models, [6.0])[0])
     for name in ("dwell_residual_mm", "max_torque_nm", "residual_energy", "max_deflection_mm"):
         assert sweep.metrics[name].shape == (1, 2, 5)
         np.testing.assert_allclose(sweep.metrics[name][..., i], res.metrics[name][..., 0], rtol=1e-9, err_msg=name)

@@ -18,7 +18,7 @@ import pytest
 from jaxflex import model as mdl
 from jaxflex.linearized import path_pose
 from jaxflex.metrics import METRICS, metrics
-from jaxflex.optimize.baselines import LawEvaluator, ModelSet
+from jaxflex.optimize.baselines import LawEvaluator, ModelId, ModelSet
 from jaxflex.optimize.objective import stack_robots
 from jaxflex.path import make_path
 from jaxflex.profiles import make_profile, profile_eval
@@ -40,7 +40,7 @@ def setup():
 
 def _series(robot, path, grid, law, tf=TF, dwell=DWELL):
     """One rollout (the default second-order fast model) as numpy arrays."""
-    ev = LawEvaluator(ModelSet(stack_robots([robot]), ("test",)), path, TF, dwell, grid)
+    ev = LawEvaluator(ModelSet(stack_robots([robot]), (ModelId(float(robot.payload)),)), path, TF, dwell, grid)
     s = ev.series(make_profile(law) if isinstance(law, str) else law, tf=tf)
     return jax.tree_util.tree_map(lambda a: np.asarray(a[0]), s)
 
