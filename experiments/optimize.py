@@ -20,7 +20,8 @@ from jaxflex.robot import cycle_preset, igm, robot_preset
 from jaxflex.trajectory import task_from_arc
 from jaxflex.optimize.baselines import ModelId
 from jaxflex.optimize.cycle_time import TORQUE_TOL
-from jaxflex.optimize.study import BLEND_FAMILY, optimize_design
+from jaxflex.optimize.study import BLEND_FAMILY, StudyConfig, optimize_design
+from jaxflex.problem import Problem, Timing
 from jaxflex.optimize.study import verify as verify_trajectories
 
 from .io import atomic_path, fmt, provenance, save_figure, table, write_json
@@ -225,8 +226,9 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, steps=100, n_coef=6, tra
     if out:
         Path(out).mkdir(parents=True, exist_ok=True)
         ckpt = Path(out) / "checkpoint.npz"
-    study = optimize_design(robot, cycle, payloads, tf, steps=steps, n_coef=n_coef, train=train,
-                            free_path=free_path, checkpoint=ckpt, learning_rate=learning_rate, grid=grid)
+    study = optimize_design(Problem(robot, cycle, tuple(payloads), Timing(tf, 0.1, grid)),
+                            StudyConfig(steps=steps, learning_rate=learning_rate, n_coef=n_coef, train=train,
+                                        free_path=free_path, checkpoint=ckpt))
     rec = {"payloads": list(study.payloads), "tf": tf, "blend": study.blend, "best_paper": study.best_paper,
            "train": study.train, "design": design_record(study),
            "laws": summary(study), "torque_bound_nm": study.torque_bound.tolist(),
@@ -339,8 +341,8 @@ def run_cycle_time(preset="default", payload=6.0, tf_ref=0.43, tfs=(0.43, 0.40, 
 
     started = time.time()
     robot, cycle = robot_preset(preset), cycle_preset(preset)
-    st = cycle_time_study(robot, cycle, payload, tf_ref, tfs, n_coef=n_coef, steps=steps,
-                          learning_rate=learning_rate, train=train)
+    st = cycle_time_study(Problem(robot, cycle, (payload,), Timing(tf_ref)), tfs,
+                          StudyConfig(steps=steps, learning_rate=learning_rate, n_coef=n_coef, train=train))
     rec = cycle_time_record(st)
     rec["provenance"] = provenance({"preset": preset, "payload": payload, "tf_ref": tf_ref, "tfs": list(tfs),
                                     "steps": steps, "n_coef": n_coef, "train": train,

@@ -24,7 +24,8 @@ import numpy as np
 
 from jaxflex import checks
 from jaxflex.designs import design_path
-from jaxflex.path import Cycle, make_path
+from jaxflex.path import make_path
+from jaxflex.problem import Problem
 from jaxflex.profiles import make_profile, shaped
 from jaxflex.robot import Robot
 from jaxflex.sweep import Case, default_grid, run_sweep
@@ -32,8 +33,8 @@ from jaxflex.workspace import build_workspace
 
 from .baselines import LawEvaluator, model_set
 from .objective import decode, encode
-from .study import (BLEND_FAMILY, PERTURB_E, PERTURB_PAYLOAD, check_study_args, nominal_indices, reference_scales,
-                    start_design, torque_bounds, train_design, training_models, training_weights)
+from .study import (BLEND_FAMILY, PERTURB_E, PERTURB_PAYLOAD, StudyConfig, _check_problem, check_study_args, nominal_indices,
+                    reference_scales, start_design, torque_bounds, train_design, training_models, training_weights)
 
 TORQUE_TOL = 1.01   # a design counts when its peak torque is within 1 % of the bound (soft penalty)
 
@@ -66,12 +67,19 @@ class CycleTimeStudy(NamedTuple):
     wall_s: float
 
 
-def cycle_time_study(robot: Robot, cycle: Cycle, payload: float = 6.0, tf_ref: float = 0.43,
-                     tfs: Sequence[float] = (0.43, 0.40, 0.37, 0.34, 0.31), *, dwell: float = 0.1,
-                     n_coef: int = 6, steps: int = 100, learning_rate: float = 0.05, train: str = "spanning",
-                     progress: bool = True) -> CycleTimeStudy:
-    """Run the study (module docstring). ``tfs`` [s] are visited in descending order."""
+def cycle_time_study(problem: Problem, tfs: Sequence[float] = (0.43, 0.40, 0.37, 0.34, 0.31),
+                     config: StudyConfig = StudyConfig()) -> CycleTimeStudy:
+    """Run the study (module docstring) for the problem's single payload [kg], with its timing's tf as
+    the reference motion time tf_ref [s]; ``tfs`` [s] are visited in descending order. Uses
+    ``config``'s steps, learning rate, law coefficients, training set and progress."""
     started = time.time()
+    _check_problem("cycle_time_study", problem, config)
+    robot, cycle = problem.robot, problem.cycle
+    if len(problem.payloads) != 1:
+        raise ValueError(f"payloads: the cycle-time study takes one payload, got {list(problem.payloads)}")
+    payload, tf_ref, dwell = problem.payloads[0], problem.timing.tf, problem.timing.dwell
+    n_coef, steps, learning_rate, train, progress = (config.n_coef, config.steps, config.learning_rate,
+                                                     config.train, config.progress)
     (payload,), tf_ref, dwell = check_study_args(robot, cycle, [payload], tf_ref, dwell, n_coef, steps,
                                                  learning_rate, train)
     tfs = np.asarray(checks.positives("tfs", tfs, "s"))

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import os
 import time
 from typing import NamedTuple, Sequence
 
@@ -38,6 +39,7 @@ from jaxflex.blends import BLENDS
 from jaxflex.designs import Design, design, design_path
 from jaxflex.linearized import path_tables
 from jaxflex.path import Cycle, Path, make_path
+from jaxflex.problem import Problem
 from jaxflex.profiles import PROFILES, make_profile, shaped
 from jaxflex.progress import Progress
 from jaxflex.robot import Robot, check_cycle_reachable
@@ -232,13 +234,44 @@ def scales_from_metrics(ref: dict, torque_bound, weights=None) -> Scales:
                   weights=None if weights is None else jnp.asarray(weights, dtype=float))
 
 
-def optimize_design(robot: Robot, cycle: Cycle, payloads: Sequence[float] = (6.0,), tf: float = 0.43, *,
-                    dwell: float = 0.1, n_coef: int = 6, steps: int = 100, learning_rate: float = 0.05,
-                    train: str = "spanning", free_path: bool = True, checkpoint=None, ruckig: bool = True,
-                    progress: bool = True, grid: Grid | None = None, init: Design | None = None) -> DesignStudy:
-    """Run the study (see module docstring). Returns a ``DesignStudy``. ``init``: starting design
-    (default ``start_design``)."""
+@dataclasses.dataclass(frozen=True)
+class StudyConfig:
+    """How an optimization study runs.
+
+    steps: optimizer updates (Adam, warm-up then cosine decay of ``learning_rate``);
+    n_coef: free coefficients of the shaped motion law; train: the training models ("nominal",
+    "spanning" or "perturbed", module docstring); free_path: optimize the blends too (False: the
+    law alone on the best paper path); init: the starting design (None: ``start_design``);
+    checkpoint: a .npz file to save to and resume from; ruckig: include the Ruckig baseline (needs
+    the optional dependency); progress: report on stderr."""
+
+    steps: int = 100
+    learning_rate: float = 0.05
+    n_coef: int = 6
+    train: str = "spanning"
+    free_path: bool = True
+    init: Design | None = None
+    checkpoint: str | os.PathLike | None = None
+    ruckig: bool = True
+    progress: bool = True
+
+
+def _check_problem(name: str, problem, config) -> None:
+    if not isinstance(problem, Problem) or not isinstance(config, StudyConfig):
+        raise TypeError(f"{name}(problem, config) takes a jaxflex.problem.Problem and a StudyConfig, got "
+                        f"{type(problem).__name__} and {type(config).__name__}")
+
+
+def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> DesignStudy:
+    """Run the study (see module docstring) on ``problem`` (robot, cycle, payloads [kg], timing)
+    with ``config``. Returns a ``DesignStudy``."""
     started = time.time()
+    _check_problem("optimize_design", problem, config)
+    robot, cycle, payloads = problem.robot, problem.cycle, problem.payloads
+    tf, dwell, grid = problem.timing
+    c = config
+    n_coef, steps, learning_rate, train, free_path = c.n_coef, c.steps, c.learning_rate, c.train, c.free_path
+    checkpoint, ruckig, progress, init = c.checkpoint, c.ruckig, c.progress, c.init
     payloads, tf, dwell = check_study_args(robot, cycle, payloads, tf, dwell, n_coef, steps, learning_rate, train)
     if init is not None:
         design_path(cycle, init, BLEND_FAMILY)

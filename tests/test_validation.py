@@ -101,7 +101,8 @@ def _entry_points():
     from jaxflex.optimize.baselines import model_set
     from jaxflex.optimize.cycle_time import cycle_time_study
     from jaxflex.optimize.objective import Scales, encode
-    from jaxflex.optimize.study import optimize_design, train_design, train_law
+    from jaxflex.optimize.study import StudyConfig, optimize_design, train_design, train_law
+    from jaxflex.problem import Problem, Timing
     from jaxflex.simulate import Grid
     from jaxflex.sweep import Case, run_sweep
 
@@ -126,7 +127,9 @@ def _entry_points():
                               "repeats": [0, -1, 1.5], "profiles": [("poly5",)], "blends": [("spline",)]}),
         ("sweep_designs", lambda **kw: sweep_designs(ROBOT, CYCLE, xs, **{"tf": 0.43, "dwell": 0.1, "grid": grid, **kw}),
          {"tf": bad_times, "dwell": bad_times, "chunk": [0, -4], "blend": ["spline"]}),
-        ("optimize_design", lambda **kw: optimize_design(ROBOT, CYCLE, **kw),
+        ("optimize_design", lambda **kw: optimize_design(
+            Problem(ROBOT, CYCLE, kw.pop("payloads", (6.0,)), Timing(kw.pop("tf", 0.43), kw.pop("dwell", 0.1))),
+            StudyConfig(**kw)),
          {"tf": bad_times, "dwell": bad_times, "payloads": [(0.0,), (-6.0,), (float("nan"),), (float("inf"),), ()],
           "steps": [-1, 2.5, float("nan")], "learning_rate": bad_times, "n_coef": [0, -2],
           "train": ["everything"]}),
@@ -136,8 +139,10 @@ def _entry_points():
         ("train_law", lambda dwell=0.1, **kw: train_law(_Evaluator(dwell), None, **{"tf": 0.43, "scales": scales,
                                                                                       "init": np.ones(4), **kw}),
          {"tf": bad_times, "dwell": bad_times, "steps": [-1], "learning_rate": bad_times}),
-        ("cycle_time_study", lambda **kw: cycle_time_study(ROBOT, CYCLE, **kw),
-         {"payload": [0.0, *bad_payloads], "tf_ref": bad_times, "tfs": [(0.43, 0.0), (float("nan"),), ()],
+        ("cycle_time_study", lambda **kw: cycle_time_study(
+            Problem(ROBOT, CYCLE, (kw.pop("payloads", 6.0),), Timing(kw.pop("tf", 0.43))), kw.pop("tfs", (0.43, 0.4)),
+            StudyConfig(**kw)),
+         {"payloads": [0.0, *bad_payloads], "tf": bad_times, "tfs": [(0.43, 0.0), (float("nan"),), ()],
           "steps": [-1], "learning_rate": bad_times, "train": ["all"]}),
         ("bench", lambda **kw: bench.compute(**kw), {"repeats": [0, -1, 2.5]}),
         ("reproduce", lambda **kw: reproduce.run(**kw), {"out": ["", None]}),

@@ -61,8 +61,9 @@ from jaxflex.blends import BLENDS
 from jaxflex.experiments.io import fmt, save_figure, table
 from jaxflex.optimize.loop import minimize
 from jaxflex.optimize.objective import TORQUE_WEIGHT, Scales, law_objective
-from jaxflex.optimize.study import optimize_design
+from jaxflex.optimize.study import StudyConfig, optimize_design
 from jaxflex.path import make_path
+from jaxflex.problem import Problem, Timing
 from jaxflex.profiles import PROFILES, make_profile, profile_eval, shaped
 from jaxflex.robot import cycle_preset, robot_preset
 from jaxflex.sweep import Case, default_grid, run_sweep, sweep_tables
@@ -134,8 +135,9 @@ if QUICK:
     robust = None
 else:
     checkpoint = OUT / f"checkpoint_{PAYLOAD:g}kg_{TF:g}s_{N_COEF}coef.npz"
-    study = optimize_design(robot, cycle, (PAYLOAD,), TF, dwell=DWELL, n_coef=N_COEF, steps=STEPS,
-                            learning_rate=LEARNING_RATE, checkpoint=checkpoint)
+    study = optimize_design(Problem(robot, cycle, (PAYLOAD,), Timing(TF, DWELL)),
+                            StudyConfig(steps=STEPS, learning_rate=LEARNING_RATE, n_coef=N_COEF,
+                                        checkpoint=checkpoint))
     paper = study.paper
     paper_blends, paper_profiles = BLENDS, PROFILES                        # the study sweeps them all
     blend, best_law, coef, result = study.blend, study.best_paper, study.coef, study.result

@@ -1,0 +1,29 @@
+"""Behaviour snapshot for refactors (issue 20: every metric equal to 1e-9 relative): the paper sweep's
+metrics (24 runs), a 3-step design optimization on the spanning set (its history) and every
+evaluation of the study (nominal, perturbed, damped sets x 4 candidates), as JSON.
+
+    python tests/scripts/behaviour_snapshot.py before.json       # on the old checkout (PYTHONPATH)
+    python tests/scripts/behaviour_snapshot.py after.json
+    python tests/scripts/behaviour_compare.py before.json after.json
+"""
+import json, sys
+import jax, numpy as np
+jax.config.update("jax_enable_x64", True)
+import jaxflex
+from jaxflex.robot import robot_preset, cycle_preset
+from jaxflex.sweep import run_sweep, PAPER_CASES
+from jaxflex.optimize import study as S
+print(jaxflex.__file__, file=sys.stderr)
+robot, cycle = robot_preset("default"), cycle_preset()
+res = run_sweep(robot, cycle, PAPER_CASES)
+out = {"sweep": {k: np.asarray(v).ravel().tolist() for k, v in res.metrics.items()}}
+if hasattr(S, "StudyConfig"):
+    from jaxflex.problem import Problem, Timing
+    st = S.optimize_design(Problem(robot, cycle, (6.0,), Timing(0.43)),
+                           S.StudyConfig(steps=3, train="spanning", ruckig=False, progress=False))
+else:
+    st = S.optimize_design(robot, cycle, (6.0,), 0.43, steps=3, train="spanning", ruckig=False, progress=False)
+out["history"] = [list(map(float, h)) for h in st.result.history]
+out["evals"] = {k: {n: {m: np.asarray(v).ravel().tolist() for m, v in d.items()} for n, d in e.items()}
+                for k, e in st.evaluations.items()}
+json.dump(out, open(sys.argv[1], "w"))
