@@ -18,7 +18,7 @@ from jaxflex.path import path_frame
 from jaxflex.profiles import profile_eval, shaped
 from jaxflex.robot import cycle_preset, igm, robot_preset
 from jaxflex.trajectory import task_from_arc
-from jaxflex.optimize.baselines import ModelId
+from jaxflex.model_sets import ModelId
 from jaxflex.optimize.cycle_time import TORQUE_TOL
 from jaxflex.optimize.study import BLEND_FAMILY, StudyConfig, optimize_design
 from jaxflex.problem import Problem, Timing

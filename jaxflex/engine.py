@@ -19,10 +19,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxflex import trees
-from jaxflex.linearized import Tables
+from jaxflex.linearized import Tables, path_tables
 from jaxflex.metrics import batch_metrics
+from jaxflex.model_sets import ModelSet
+from jaxflex.path import Path
+from jaxflex.profiles import Profile
 from jaxflex.robot import Robot
-from jaxflex.simulate import Grid, MotionSamples, Series, rollout
+from jaxflex.simulate import Grid, MotionSamples, Series, rollout, sample_motion
 
 
 @functools.partial(jax.jit, static_argnames=("grid", "second_order"))
@@ -47,3 +50,48 @@ def run_many(jobs: Sequence[tuple], grid: Grid, second_order: bool = True) -> Se
 def metrics_of(series: Series) -> dict:
     """Metrics (``jaxflex.metrics``) of a batch of runs as numpy arrays of the batch shape."""
     return {k: np.asarray(v) for k, v in batch_metrics(series).items()}
+
+
+class LawEvaluator:
+    """Metrics of any motion law along one path on a set of models (second-order fast model).
+
+    The tables are built once per model; every law (paper, shaped, input-shaped, Ruckig samples) on
+    every model runs through the evaluation engine's one compiled program (``jaxflex.engine``), one
+    model at a time, so evaluators of any model set share it. ``chunk`` is accepted for
+    compatibility (it used to set the batch size of a vmapped program) and must be >= 1."""
+
+    def __init__(self, models: ModelSet, path: Path, tf: float, dwell: float, grid: Grid, *,
+                 chunk: int | None = None):
+        k = len(models.labels)
+        chunk = k if chunk is None else int(chunk)
+        if chunk < 1:
+            raise ValueError(f"chunk must be >= 1, got {chunk}")
+        self.models, self.path, self.tf, self.dwell, self.grid, self.chunk = models, path, tf, dwell, grid, chunk
+        self.tables = path_tables(models.robots, path)
+        self._per_model = [(jax.tree_util.tree_map(lambda v: v[i], self.tables),
+                            jax.tree_util.tree_map(lambda v: v[i], models.robots)) for i in range(k)]
+
+    def with_grid(self, grid: Grid) -> "LawEvaluator":
+        """The same path and models on another grid, sharing the tables (they do not depend on it)."""
+        other = object.__new__(LawEvaluator)
+        other.__dict__.update(self.__dict__, grid=grid)
+        return other
+
+    def samples(self, profile: Profile, tf: float | None = None) -> MotionSamples:
+        return sample_motion(self.path.length, profile, self.tf if tf is None else tf, self.grid)
+
+    def series(self, law, tf: float | None = None):
+        """The simulation ``Series`` of a law on every model (leading axis K)."""
+        tf = self.tf if tf is None else tf
+        samples = law if isinstance(law, MotionSamples) else self.samples(law, tf)
+        return run_many([(tables, samples, tf, self.dwell, robot) for tables, robot in self._per_model],
+                               self.grid)
+
+    def __call__(self, law, tf: float | None = None) -> dict:
+        """law: a Profile or MotionSamples -> metrics dict name -> (K,) numpy arrays. ``tf`` [s]
+        overrides the motion time (same grid, no recompilation; MotionSamples must match it)."""
+        out = metrics_of(self.series(law, tf))
+        bad = [k for k, v in out.items() if not np.all(np.isfinite(v))]
+        if bad:
+            raise FloatingPointError(f"non-finite {bad} for law {getattr(law, 'name', 'samples')}")
+        return out

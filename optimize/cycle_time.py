@@ -31,7 +31,8 @@ from jaxflex.robot import Robot
 from jaxflex.sweep import Case, default_grid, run_sweep
 from jaxflex.workspace import build_workspace
 
-from .baselines import LawEvaluator, model_set
+from jaxflex.engine import LawEvaluator
+from jaxflex.model_sets import model_set
 from .objective import decode, encode
 from .study import (BLEND_FAMILY, PERTURB_E, PERTURB_PAYLOAD, StudyConfig, _check_problem, check_study_args, nominal_indices,
                     reference_scales, start_design, torque_bounds, train_design, training_models, training_weights)

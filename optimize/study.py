@@ -37,7 +37,9 @@ from jaxflex import trees
 from jaxflex import checks
 from jaxflex.blends import BLENDS
 from jaxflex.designs import Design, design, design_path
+from jaxflex.engine import LawEvaluator
 from jaxflex.linearized import path_tables
+from jaxflex.model_sets import ModelId, ModelSet, model_set, place_first_mode_hz
 from jaxflex.path import Cycle, Path, make_path
 from jaxflex.problem import Problem
 from jaxflex.profiles import PROFILES, make_profile, shaped
@@ -47,7 +49,7 @@ from jaxflex.simulate import Grid, check_grid
 from jaxflex.sweep import default_grid
 from jaxflex.workspace import Workspace, build_workspace
 
-from .baselines import LawEvaluator, ModelId, ModelSet, model_set, place_first_mode_hz, ruckig_samples, shaper_profiles
+from .baselines import ruckig_samples, shaper_profiles
 from .loop import OptResult, minimize
 from .objective import TORQUE_WEIGHT, Params, Scales, decode, encode, law_objective, objective
 

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from jaxflex.experiments.optimize import trajectory_rows
-from jaxflex.optimize.baselines import model_set, place_first_mode_hz, ruckig_limits, ruckig_samples
+from jaxflex.model_sets import model_set, place_first_mode_hz
+from jaxflex.optimize.baselines import ruckig_limits, ruckig_samples
 from jaxflex.path import make_path
 from jaxflex.profiles import make_profile
 from jaxflex.robot import cycle_preset, dgm, robot_preset

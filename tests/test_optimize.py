@@ -221,7 +221,8 @@ def test_paper_sweep_on_training_models_matches_run_sweep_and_chunks_do_not_chan
     perturbed models as 5 + 4 and one padding copy) returns, for the five models it shares with the
     training set, the training evaluator's metrics. Small model and coarse grid: the code path, not
     the physics, is under test."""
-    from jaxflex.optimize.baselines import LawEvaluator, model_set
+    from jaxflex.engine import LawEvaluator
+    from jaxflex.model_sets import model_set
     from jaxflex.optimize.study import PERTURB_E, PERTURB_PAYLOAD, nominal_indices, paper_sweep, training_models
     from jaxflex.profiles import make_profile
     from jaxflex.sweep import Case, run_sweep

@@ -18,7 +18,8 @@ import pytest
 from jaxflex import model as mdl
 from jaxflex.linearized import path_pose
 from jaxflex.metrics import METRICS, metrics
-from jaxflex.optimize.baselines import LawEvaluator, ModelId, ModelSet
+from jaxflex.engine import LawEvaluator
+from jaxflex.model_sets import ModelId, ModelSet
 from jaxflex.optimize.objective import stack_robots
 from jaxflex.path import make_path
 from jaxflex.profiles import make_profile, profile_eval

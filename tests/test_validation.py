@@ -98,7 +98,7 @@ def _entry_points():
     point that compiles."""
     from jaxflex.designs import design, sweep_designs
     from jaxflex.experiments import bench, reproduce
-    from jaxflex.optimize.baselines import model_set
+    from jaxflex.model_sets import model_set
     from jaxflex.optimize.cycle_time import cycle_time_study
     from jaxflex.optimize.objective import Scales, encode
     from jaxflex.optimize.study import StudyConfig, optimize_design, train_design, train_law
