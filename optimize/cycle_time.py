@@ -27,14 +27,12 @@ from jaxflex.designs import design_path
 from jaxflex.path import make_path
 from jaxflex.problem import Problem
 from jaxflex.profiles import make_profile, shaped
-from jaxflex.robot import Robot
 from jaxflex.sweep import Case, default_grid, run_sweep
-from jaxflex.workspace import build_workspace
 
 from jaxflex.engine import LawEvaluator
 from jaxflex.model_sets import model_set
 from .objective import decode, encode
-from .study import (BLEND_FAMILY, PERTURB_E, PERTURB_PAYLOAD, StudyConfig, _check_problem, check_study_args, nominal_indices,
+from .study import (BLEND_FAMILY, PERTURB_E, PERTURB_PAYLOAD, StudyConfig, _check_problem, _workspaces, check_study_args, nominal_indices,
                     reference_scales, start_design, torque_bounds, train_design, training_models, training_weights)
 
 TORQUE_TOL = 1.01   # a design counts when its peak torque is within 1 % of the bound (soft penalty)
@@ -111,7 +109,7 @@ def cycle_time_study(problem: Problem, tfs: Sequence[float] = (0.43, 0.40, 0.37,
     paper_perturbed = LawEvaluator(perturbed, make_path(cycle, blend, 0.025), tf_ref, dwell, grid, chunk=chunk)
     target_perturbed = float(np.max(paper_perturbed(make_profile(law))["dwell_residual_mm"]))
     params = encode(cycle, start_design(cycle, n_coef))
-    workspaces = build_workspace(models.robots, cycle)           # once for every tf
+    workspaces = _workspaces(models, cycle, progress)           # once for every tf
     opt_res, opt_worst, opt_tau, designs = [], [], [], []
     for tf in tfs:
         scales = reference_scales(ref_eval, make_profile(law), bounds, tf=float(tf), weights=training_weights(train))

@@ -258,6 +258,13 @@ class StudyConfig:
     progress: bool = True
 
 
+def _workspaces(models: ModelSet, cycle: Cycle, progress: bool) -> Workspace:
+    """The training models' workspace tables (``jaxflex.workspace``), with progress on stderr."""
+    bar = Progress(f"workspace tables of {len(models.ids)} model(s)", enabled=progress)
+    with bar.waiting("building (the blends' design space around both corners)", key="workspace tables"):
+        return jax.block_until_ready(build_workspace(models.robots, cycle))
+
+
 def _check_problem(name: str, problem, config) -> None:
     if not isinstance(problem, Problem) or not isinstance(config, StudyConfig):
         raise TypeError(f"{name}(problem, config) takes a jaxflex.problem.Problem and a StudyConfig, got "
@@ -298,7 +305,7 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
     scales = scales_from_metrics(ref, bounds, training_weights(train, len(payloads)))
     train_paper = sweep.evaluators[blend]
     label = f"{'design' if free_path else 'law'} tf={tf:g}"
-    workspaces = build_workspace(models.robots, cycle) if free_path else None
+    workspaces = _workspaces(models, cycle, progress) if free_path else None
     setup_s = time.time() - started
     if free_path:
         x0 = init if init is not None else start_design(cycle, n_coef)
