@@ -258,6 +258,18 @@ class StudyConfig:
     progress: bool = True
 
 
+def _evaluators(sets: dict, paths: dict, tf: float, dwell: float, grid: Grid) -> dict:
+    """set name -> path name ("paper", "optimized") -> ``LawEvaluator`` (the optimized path's
+    evaluator is the paper one when the path was not optimized). Every evaluator runs the engine's
+    one rollout program, the one the paper sweep compiled."""
+    out = {}
+    for k, s in sets.items():
+        out[k] = {"paper": LawEvaluator(s, paths["paper"], tf, dwell, grid)}
+        out[k]["optimized"] = (out[k]["paper"] if paths["optimized"] is paths["paper"]
+                               else LawEvaluator(s, paths["optimized"], tf, dwell, grid))
+    return out
+
+
 def _workspaces(models: ModelSet, cycle: Cycle, progress: bool) -> Workspace:
     """The training models' workspace tables (``jaxflex.workspace``), with progress on stderr."""
     bar = Progress(f"workspace tables of {len(models.ids)} model(s)", enabled=progress)
@@ -323,11 +335,14 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
         paths["optimized"] = paths["paper"]
 
     # the evaluation sets (built after the optimizer: the damped set needs each model's first mode)
-    sets = {
-        "nominal": model_set(robot, payloads),
-        "perturbed": model_set(robot, payloads, stiffness=PERTURB_E, payload_scale=PERTURB_PAYLOAD),
-        "damped": model_set(robot, payloads, damping_ratio=DAMPING_RATIO, cycle=cycle),
-    }
+    setup = Progress("evaluation sets (nominal, perturbed, damped)", enabled=progress)
+    with setup.waiting("models and the path tables of the best paper and the optimized paths"):
+        sets = {
+            "nominal": model_set(robot, payloads),
+            "perturbed": model_set(robot, payloads, stiffness=PERTURB_E, payload_scale=PERTURB_PAYLOAD),
+            "damped": model_set(robot, payloads, damping_ratio=DAMPING_RATIO, cycle=cycle),
+        }
+        evaluators = _evaluators(sets, paths, tf, dwell, grid)
     freqs = tuple(place_first_mode_hz(robot.replace(payload=m), cycle) for m in payloads)
     # baselines on the best paper path: the best law, its shaped versions (first payload's mode), Ruckig
     candidates = {f"{blend}/{law} (best paper)": Candidate("paper", make_profile(law))}
@@ -342,13 +357,6 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
             if progress:
                 print(f"  (Ruckig baseline skipped: {err})", flush=True)
     candidates["optimized"] = Candidate("optimized", shaped(jnp.asarray(coef), name="optimized"))
-    # every set in batches of the training set's size: the rollout program compiled for the paper
-    # sweep serves every evaluation
-    chunk = len(models.labels)
-    evaluators = {k: {"paper": LawEvaluator(s, paths["paper"], tf, dwell, grid, chunk=chunk)} for k, s in sets.items()}
-    for k, s in sets.items():
-        evaluators[k]["optimized"] = (evaluators[k]["paper"] if paths["optimized"] is paths["paper"]
-                                      else LawEvaluator(s, paths["optimized"], tf, dwell, grid, chunk=chunk))
     bar = Progress(f"baselines and the optimized design on {sum(len(s.labels) for s in sets.values())} models",
                    total=len(sets) * len(candidates), unit="evaluation", enabled=progress)
     evaluations = {}
