@@ -11,6 +11,7 @@ state, the history and the step; a rerun with the same checkpoint path resumes f
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 import hashlib
 import os
@@ -150,19 +151,42 @@ def _update(params, state, args, learning_rate, *, f, mode):
     return new_params, state, value, aux
 
 
-def minimize(f: Callable, params0, *, args: tuple = (), steps: int = 100, learning_rate: float = 0.05,
-             checkpoint: str | Path | None = None, patience: int = 25, rel_tol: float = 1e-3,
-             target: float | None = None, progress: bool = True, label: str = "optimize",
-             mode: str = "reverse", decay: bool = False, monitor: Callable | None = None) -> OptResult:
-    """Minimize f(params, *args) -> (value, aux) with Adam.
+@dataclasses.dataclass(frozen=True)
+class OptimizerConfig:
+    """How ``minimize`` runs.
+
+    steps: updates at most; learning_rate: Adam's rate [-]; decay: warm-up and cosine decay of the
+    rate over ``steps`` (``schedule``); patience, rel_tol: stop when the best value has not improved
+    by ``rel_tol * max(1, |best|)`` for ``patience`` steps (this works for objectives on a log scale,
+    whose values cross zero); target: stop when the best value falls below it; mode: "reverse" or
+    "forward" autodiff; checkpoint: a .npz path to save to and resume from; progress: report on
+    stderr under ``label``; monitor: aux -> 1-D array of numbers recorded in every history row
+    after (step, value)."""
+
+    steps: int = 100
+    learning_rate: float = 0.05
+    decay: bool = False
+    patience: int = 25
+    rel_tol: float = 1e-3
+    target: float | None = None
+    mode: str = "reverse"
+    checkpoint: str | os.PathLike | None = None
+    progress: bool = True
+    label: str = "optimize"
+    monitor: Callable | None = None
+
+
+def minimize(f: Callable, params0, args: tuple = (), config: OptimizerConfig = OptimizerConfig()) -> OptResult:
+    """Minimize f(params, *args) -> (value, aux) with Adam, as ``config`` says (``OptimizerConfig``).
 
     ``args`` are traced (pytrees of arrays): reuse the same function f with new ``args`` values to
-    avoid recompiling. Stops after ``steps`` updates, when the best value has not improved by
-    ``rel_tol * max(1, |best|)`` for ``patience`` steps (this works for objectives on a log scale,
-    whose values cross zero), or when it falls below ``target``. Returns the best parameters seen.
-    ``mode``: "reverse" or "forward" autodiff for the gradient. ``decay``: warm-up and cosine decay
-    of the learning rate over ``steps`` (``learning_rate_at``). ``monitor``: aux -> 1-D array of numbers recorded in
-    every history row after (step, value)."""
+    avoid recompiling. Returns the best parameters seen (``OptResult``)."""
+    c = config
+    if not isinstance(c, OptimizerConfig):
+        raise TypeError(f"config must be an OptimizerConfig, got {type(c).__name__}")
+    mode, checkpoint, progress, label, monitor, target = c.mode, c.checkpoint, c.progress, c.label, c.monitor, c.target
+    decay, rel_tol = c.decay, c.rel_tol
+    learning_rate, steps, patience = c.learning_rate, c.steps, c.patience
     if mode not in ("reverse", "forward"):
         raise ValueError(f"mode must be 'reverse' or 'forward', got {mode!r}")
     checks.positive("learning_rate", learning_rate)

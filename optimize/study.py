@@ -50,7 +50,7 @@ from jaxflex.sweep import default_grid
 from jaxflex.workspace import Workspace, build_workspace
 
 from .baselines import ruckig_samples, shaper_profiles
-from .loop import OptResult, minimize
+from .loop import OptimizerConfig, OptResult, minimize
 from .objective import TORQUE_WEIGHT, Params, Scales, decode, encode, law_objective, objective
 
 PERTURB_E = (0.95, 1.0, 1.05)
@@ -415,8 +415,9 @@ def train_design(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid: 
     through the model's table build."""
     _check_training(tf, dwell, steps, learning_rate)
     f, args = design_objective(models, cycle, tf, dwell, grid, scales, workspaces)
-    return minimize(f, init, args=args, steps=steps, learning_rate=learning_rate, checkpoint=checkpoint,
-                    patience=patience, progress=progress, label=label, decay=True, monitor=_dwell)
+    return minimize(f, init, args, OptimizerConfig(steps=steps, learning_rate=learning_rate, decay=True,
+                                                   patience=patience, checkpoint=checkpoint, progress=progress,
+                                                   label=label, monitor=_dwell))
 
 
 def design_objective(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid: Grid, scales: Scales,
@@ -448,9 +449,9 @@ def train_law(train: LawEvaluator, path: Path, tf: float, scales: Scales, init, 
     ``train`` (its path) at motion time tf [s] with the normalization ``scales``."""
     _check_training(tf, train.dwell, steps, learning_rate)
     f, args = law_objective_args(train.models, path, tf, train.dwell, train.grid, scales, train.tables)
-    return minimize(f, jnp.asarray(init, dtype=float), args=args, steps=steps, learning_rate=learning_rate,
-                    checkpoint=checkpoint, patience=patience, progress=progress, label=label, decay=True,
-                    monitor=_dwell)
+    return minimize(f, jnp.asarray(init, dtype=float), args,
+                    OptimizerConfig(steps=steps, learning_rate=learning_rate, decay=True, patience=patience,
+                                    checkpoint=checkpoint, progress=progress, label=label, monitor=_dwell))
 
 
 def law_objective_args(models: ModelSet, path: Path, tf: float, dwell: float, grid: Grid, scales: Scales,

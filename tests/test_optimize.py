@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from jaxflex.designs import design
-from jaxflex.optimize.loop import minimize, value_and_grad_fwd
+from jaxflex.optimize.loop import OptimizerConfig, minimize, value_and_grad_fwd
 from jaxflex.optimize.objective import Params, Scales, decode, encode, objective, stack_robots
 from jaxflex.path import make_path
 from jaxflex.robot import cycle_preset, robot_preset
@@ -100,10 +100,11 @@ def test_minimize_is_deterministic_and_resumes_from_a_checkpoint(tmp_path):
     target = jnp.asarray([1.0, -2.0, 0.5])
     f = lambda p: (jnp.sum((p["x"] - target) ** 2) + 0.1 * jnp.sum(p["x"] ** 4), {"x": p["x"]})
     p0 = {"x": jnp.zeros(3)}
-    full = minimize(f, p0, steps=20, learning_rate=0.1, progress=False, patience=100)
+    full = minimize(f, p0, config=OptimizerConfig(steps=20, learning_rate=0.1, progress=False, patience=100))
     ck = tmp_path / "ck.npz"
-    minimize(f, p0, steps=10, learning_rate=0.1, progress=False, checkpoint=ck, patience=100)
-    resumed = minimize(f, p0, steps=20, learning_rate=0.1, progress=False, checkpoint=ck, patience=100)
+    minimize(f, p0, config=OptimizerConfig(steps=10, learning_rate=0.1, progress=False, checkpoint=ck, patience=100))
+    resumed = minimize(f, p0, config=OptimizerConfig(steps=20, learning_rate=0.1, progress=False, checkpoint=ck,
+                                                     patience=100))
     np.testing.assert_array_equal(resumed.params["x"], full.params["x"])
     assert [h for h in resumed.history] == [h for h in full.history]
     assert full.value < float(f(p0)[0])
@@ -118,13 +119,12 @@ def test_minimize_reuses_its_compilation_for_new_argument_values():
         return jnp.sum((p - target) ** 2), {}
 
     before = value_and_grad._cache_size()
-    a = minimize(f, jnp.zeros(2), args=(jnp.asarray([1.0, 2.0]),), steps=300, learning_rate=0.1,
-                 progress=False, patience=300)
-    b = minimize(f, jnp.zeros(2), args=(jnp.asarray([-1.0, 0.5]),), steps=300, learning_rate=0.1,
-                 progress=False, patience=300)
+    cfg = OptimizerConfig(steps=300, learning_rate=0.1, progress=False, patience=300)
+    a = minimize(f, jnp.zeros(2), args=(jnp.asarray([1.0, 2.0]),), config=cfg)
+    b = minimize(f, jnp.zeros(2), args=(jnp.asarray([-1.0, 0.5]),), config=cfg)
     # the schedule (warm-up, then cosine decay) and another rate and length: still the same program
-    minimize(f, jnp.zeros(2), args=(jnp.asarray([0.0, 0.0]),), steps=30, learning_rate=0.02, progress=False,
-             patience=300, decay=True)
+    minimize(f, jnp.zeros(2), args=(jnp.asarray([0.0, 0.0]),),
+             config=OptimizerConfig(steps=30, learning_rate=0.02, progress=False, patience=300, decay=True))
     assert value_and_grad._cache_size() == before + 1
     np.testing.assert_allclose(a.params, [1.0, 2.0], atol=1e-2)     # Adam at lr 0.1: within 1e-2
     np.testing.assert_allclose(b.params, [-1.0, 0.5], atol=1e-2)
@@ -148,7 +148,7 @@ def test_learning_rate_schedule_warms_up_then_decays_to_the_floor():
 def test_minimize_does_not_stop_early_on_negative_objectives():
     """Log-scale objectives cross zero: the plateau test must still see progress below zero."""
     f = lambda p: (jnp.log(1e-6 + jnp.sum((p - 3.0) ** 2)), {})
-    r = minimize(f, jnp.zeros(2), steps=400, learning_rate=0.05, progress=False, patience=20)
+    r = minimize(f, jnp.zeros(2), config=OptimizerConfig(steps=400, learning_rate=0.05, progress=False, patience=20))
     assert r.value < -5.0, (r.value, r.steps_run, r.stopped)        # |p - 3| < 0.06
 
 

@@ -59,7 +59,7 @@ import numpy as np
 from jaxflex import plotting
 from jaxflex.blends import BLENDS
 from jaxflex.experiments.io import fmt, save_figure, table
-from jaxflex.optimize.loop import minimize
+from jaxflex.optimize.loop import OptimizerConfig, minimize
 from jaxflex.optimize.objective import TORQUE_WEIGHT, Scales, law_objective
 from jaxflex.optimize.study import StudyConfig, optimize_design
 from jaxflex.path import make_path
@@ -126,8 +126,8 @@ if QUICK:
                     torque_bound=jnp.asarray([torque_bound]))
     objective = lambda coef: law_objective(coef, tables, path.length, TF, DWELL, res.grid, scales,
                                            torque_weight=TORQUE_WEIGHT)     # the study's penalty weight
-    result = minimize(objective, jnp.ones(N_COEF), steps=STEPS, learning_rate=LEARNING_RATE, patience=40,
-                      label="law")
+    result = minimize(objective, jnp.ones(N_COEF),
+                      config=OptimizerConfig(steps=STEPS, learning_rate=LEARNING_RATE, patience=40, label="law"))
     coef = np.asarray(result.params)
     best_key = f"{blend}/{best_law} (best paper)"
     laws = {best_key: {k: float(v) for k, v in ref.items()},
