@@ -112,10 +112,11 @@ def cycle_time_study(problem: Problem, tfs: Sequence[float] = (0.43, 0.40, 0.37,
     workspaces = _workspaces(models, cycle, progress)           # once for every tf
     opt_res, opt_worst, opt_tau, designs = [], [], [], []
     for tf in tfs:
-        scales = reference_scales(ref_eval, make_profile(law), bounds, tf=float(tf), weights=training_weights(train))
+        scales = reference_scales(ref_eval, make_profile(law), bounds, tf=float(tf), weights=training_weights(train),
+                                  absolute=config.absolute)
         result = train_design(models, cycle, float(tf), dwell, grid, scales, params, steps=steps,
                               learning_rate=learning_rate, progress=progress, label=f"design tf={tf:g}",
-                              workspaces=workspaces)
+                              workspaces=workspaces, power=config.robust_power)
         params = result.params
         x = jax.tree_util.tree_map(np.asarray, decode(cycle, params))
         path = design_path(cycle, x, BLEND_FAMILY)

@@ -249,3 +249,28 @@ def test_paper_sweep_on_training_models_matches_run_sweep_and_chunks_do_not_chan
         np.testing.assert_allclose(v[same], sweep.metrics[name][0, 0], rtol=1e-12, atol=0, err_msg=name)
     with pytest.raises(ValueError, match="chunk"):
         LawEvaluator(perturbed, sweep.evaluators["lame"].path, TF, DWELL, grid, chunk=0)
+
+
+def test_power_mean_objective_tends_to_the_worst_model_and_scales_are_absolute():
+    """p = 1 is the weighted mean; a large power tends to the worst model (within w_min^(-1/p));
+    the study's scales divide every model of a payload case by the same nominal reference."""
+    from jaxflex.model_sets import model_set
+    from jaxflex.optimize.objective import combine
+    from jaxflex.optimize.study import scales_from_metrics
+
+    scales = Scales(jnp.ones(3), jnp.ones(3), jnp.asarray(1e9), jnp.asarray([0.5, 0.25, 0.25]))
+    r = jnp.asarray([1.0, 4.0, 2.0])                                   # per-model (E + A) / 2 = r
+    terms = {"energy": r, "dwell_ms": r, "torque": jnp.zeros(3)}
+    np.testing.assert_allclose(float(combine(terms, scales)), np.log(0.5 * 1 + 0.25 * 4 + 0.25 * 2), rtol=1e-14)
+    np.testing.assert_allclose(float(combine(terms, scales, power=2.0)),
+                               0.5 * np.log(0.5 * 1 + 0.25 * 16 + 0.25 * 4), rtol=1e-13)
+    worst = float(combine(terms, scales, power=64.0))
+    assert np.log(4.0) + np.log(0.25) / 64 - 1e-12 <= worst <= np.log(4.0) + 1e-12
+    robot = robot_preset("default", n_bending=1, n_axial=1)
+    ms = model_set(robot, [0.1, 6.0], stiffness=(0.95, 1.0), payload_scale=(1.0,))   # payload outer, then E
+    ref = {"residual_energy": np.array([1.0, 2.0, 3.0, 4.0]), "dwell_residual_mm": np.array([0.1, 0.2, 0.3, 0.4])}
+    s = scales_from_metrics(ref, 1.0, None, ms)
+    # each model takes its payload's nominal model (E x1): 0.1 kg -> index 1, 6 kg -> index 3
+    assert [i.payload for i in ms.ids] == [0.1, 0.1, 6.0, 6.0] and [i.stiffness_scale for i in ms.ids] == [0.95, 1.0] * 2
+    np.testing.assert_allclose(np.asarray(s.energy), [2.0, 2.0, 4.0, 4.0])
+    np.testing.assert_allclose(np.asarray(s.dwell_ms), np.array([0.2, 0.2, 0.4, 0.4]) ** 2 * 1e-6 / 2)
