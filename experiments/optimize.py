@@ -15,7 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxflex.path import path_frame
-from jaxflex.profiles import profile_eval, shaped
+from jaxflex.profiles import profile_eval
 from jaxflex.robot import cycle_preset, igm, robot_preset
 from jaxflex.trajectory import task_from_arc
 from jaxflex.model_sets import ModelId
@@ -171,7 +171,7 @@ def figure(study, out_dir: Path):
     from jaxflex.profiles import make_profile
 
     best = make_profile(study.best_paper)
-    opt = shaped(jnp.asarray(study.coef))
+    opt = study.candidates["optimized"].law
     eta = jnp.linspace(0, 1, 400)
     fig, ax = plt.subplots(1, 3, figsize=(15, 3.8))
     for p, lab in ((best, f"{study.best_paper} (best paper)"), (make_profile("poly7"), "poly7"), (opt, "optimized")):
@@ -244,7 +244,7 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, steps=100, n_coef=6, tra
     if out:
         out = Path(out)
         rows = trajectory_rows(robot.replace(payload=payloads[0]), study.paths["optimized"],
-                               shaped(jnp.asarray(study.coef)), tf)
+                               study.candidates["optimized"].law, tf)
         write_trajectory_csv(out / "trajectory.csv", rows)
         figure(study, out)
         error_figure(study, out / "error_series.png")
@@ -255,7 +255,7 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, steps=100, n_coef=6, tra
         release_compiled()          # the study's programs are done with (memory mappings, jaxflex.compiled)
         best = f"{study.blend}/{study.best_paper} (best paper)"
         trajectories = {best: (study.paths["paper"], make_profile(study.best_paper)),
-                        "optimized": (study.paths["optimized"], shaped(jnp.asarray(study.coef)))}
+                        "optimized": (study.paths["optimized"], study.candidates["optimized"].law)}
         rec["verification"] = {f"{m:g} kg": verify_trajectories(robot, cycle, trajectories, m, tf) for m in payloads}
     if out:
         write_json(out / "optimize.json", rec)

@@ -53,7 +53,8 @@ class Profile:
         ta: acceleration time as a fraction of tf (trapezoid only).
         coef: Bernstein coefficients of g (shaped; shape (m + 1,)) or impulse amplitudes (impulses;
             (K,), summing to 1).
-        order: exponent r of the end factor eta^r (1 - eta)^r (shaped only; static, 2 or 3).
+        order: exponent r of the end factor eta^r (1 - eta)^r (shaped only; static, 2, 3 or 4:
+            the derivatives of S up to order r vanish at both ends, and S^(r+1) jumps there).
         name: display name (static).
         times: impulse times as fractions of tf, (K,) ascending from 0 (impulses only).
         base: name of the paper law that the impulses convolve (impulses only; static).
@@ -91,8 +92,8 @@ def shaped(coef, order: int = 3, name: str = "shaped") -> Profile:
     coef = jnp.asarray(coef, dtype=float)
     if coef.ndim != 1 or coef.shape[0] < 1:
         raise ValueError("shaped profile coefficients must be a non-empty 1-D array")
-    if order not in (2, 3):
-        raise ValueError(f"shaped profile order must be 2 or 3, got {order}")
+    if order not in (2, 3, 4):
+        raise ValueError(f"shaped profile order must be 2, 3 or 4, got {order}")
     if not isinstance(coef, jax.core.Tracer):
         c = np.asarray(coef)
         if not np.all(np.isfinite(c)):

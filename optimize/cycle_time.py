@@ -116,11 +116,11 @@ def cycle_time_study(problem: Problem, tfs: Sequence[float] = (0.43, 0.40, 0.37,
                                   absolute=config.absolute)
         result = train_design(models, cycle, float(tf), dwell, grid, scales, params, steps=steps,
                               learning_rate=learning_rate, progress=progress, label=f"design tf={tf:g}",
-                              workspaces=workspaces, power=config.robust_power)
+                              workspaces=workspaces, power=config.robust_power, order=config.law_order)
         params = result.params
         x = jax.tree_util.tree_map(np.asarray, decode(cycle, params))
         path = design_path(cycle, x, BLEND_FAMILY)
-        m = LawEvaluator(perturbed, path, float(tf), dwell, grid, chunk=chunk)(shaped(x.coef))
+        m = LawEvaluator(perturbed, path, float(tf), dwell, grid, chunk=chunk)(shaped(x.coef, config.law_order))
         opt_res.append(float(m["dwell_residual_mm"][i_nominal]))
         opt_tau.append(float(m["max_torque_nm"][i_nominal]))
         opt_worst.append(float(np.max(m["dwell_residual_mm"])))

@@ -269,10 +269,14 @@ class StudyConfig:
     absolute: scale every training model by the best paper combination's residual on its payload's
     nominal model (SPEC 6) instead of by that combination's residual on the same model;
     robust_power: order of the power mean over the training models (1: weighted mean; ROBUST_POWER:
-    a smooth worst case). Measured at 6 kg, tf 0.43 s, spanning set, 100 steps: the default gives
-    0.32 um nominal and 33.8 um on the worst of the 9 perturbed models; absolute with power 8 gives
-    23 um and 35.7 um. The worst case is limited by the design space (issue 21), so the default
-    stays until a design space that reaches it."""
+    a smooth worst case); law_order: exponent r of the shaped law's end factor (3: zero velocity,
+    acceleration and jerk at both ends, poly7 at the start; 4: zero snap too, poly9 at the start).
+
+    Measured at 6 kg, tf 0.43 s, spanning set, 100 steps (nominal / worst of the 9 perturbed models /
+    damped): default 0.32 / 33.8 / 6.8 um; absolute, power 8: 23 / 35.7 / 5.6 um; law order 4:
+    1.1 / 46.5 / 8.6 um; law order 4, absolute, power 8: 5.7 / 29.0 / 3.7 um (best paper
+    combination 16.6 / 224 / 56 um). The worst case stays near 30 um in this design space (issue
+    21), so the defaults stay until a design space that lowers it."""
 
     steps: int = 100
     learning_rate: float = 0.05
@@ -285,6 +289,7 @@ class StudyConfig:
     progress: bool = True
     absolute: bool = False
     robust_power: float = 1.0
+    law_order: int = 3
 
 
 def _evaluators(sets: dict, paths: dict, tf: float, dwell: float, grid: Grid) -> dict:
@@ -352,14 +357,15 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
         x0 = init if init is not None else start_design(cycle, n_coef)
         result = train_design(models, cycle, tf, dwell, grid, scales, encode(cycle, x0), steps=steps,
                               learning_rate=learning_rate, checkpoint=checkpoint, progress=progress, label=label,
-                              workspaces=workspaces, power=c.robust_power)
+                              workspaces=workspaces, power=c.robust_power, order=c.law_order)
         x = jax.tree_util.tree_map(np.asarray, decode(cycle, result.params))
         paths["optimized"] = design_path(cycle, x, BLEND_FAMILY)
         coef = np.asarray(x.coef)
     else:
         c0 = np.ones(n_coef) if init is None else np.asarray(init.coef)
         result = train_law(train_paper, paths["paper"], tf, scales, c0, steps=steps, learning_rate=learning_rate,
-                           checkpoint=checkpoint, progress=progress, label=label, power=c.robust_power)
+                           checkpoint=checkpoint, progress=progress, label=label, power=c.robust_power,
+                           order=c.law_order)
         x, coef = None, np.asarray(result.params)
         paths["optimized"] = paths["paper"]
 
@@ -385,7 +391,7 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
         except ImportError as err:
             if progress:
                 print(f"  (Ruckig baseline skipped: {err})", flush=True)
-    candidates["optimized"] = Candidate("optimized", shaped(jnp.asarray(coef), name="optimized"))
+    candidates["optimized"] = Candidate("optimized", shaped(jnp.asarray(coef), c.law_order, name="optimized"))
     bar = Progress(f"baselines and the optimized design on {sum(len(s.labels) for s in sets.values())} models",
                    total=len(sets) * len(candidates), unit="evaluation", enabled=progress)
     evaluations = {}
@@ -438,7 +444,7 @@ class LawObjective:
 def train_design(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid: Grid, scales: Scales,
                  init: Params, *, steps: int = 100, learning_rate: float = 0.05, checkpoint=None,
                  progress: bool = True, patience: int = 40, label: str = "design",
-                 workspaces: Workspace | None = None, power: float = 1.0) -> OptResult:
+                 workspaces: Workspace | None = None, power: float = 1.0, order: int = 3) -> OptResult:
     """Optimize the design parameters (start ``init``) on ``models`` at motion time tf [s] with the
     normalization ``scales`` (Adam; learning rate warmed up, then cosine-decayed). The path tables
     inside the objective come from the models' workspace tables (``jaxflex.workspace``, built here
@@ -446,14 +452,14 @@ def train_design(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid: 
     through the model's table build. ``power``: order of the power mean over the models
     (``objective.combine``)."""
     _check_training(tf, dwell, steps, learning_rate)
-    f, args = design_objective(models, cycle, tf, dwell, grid, scales, workspaces, power=power)
+    f, args = design_objective(models, cycle, tf, dwell, grid, scales, workspaces, power=power, order=order)
     return minimize(f, init, args, OptimizerConfig(steps=steps, learning_rate=learning_rate, decay=True,
                                                    patience=patience, checkpoint=checkpoint, progress=progress,
                                                    label=label, monitor=_dwell))
 
 
 def design_objective(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid: Grid, scales: Scales,
-                     workspaces: Workspace | None = None, *, power: float = 1.0) -> tuple:
+                     workspaces: Workspace | None = None, *, power: float = 1.0, order: int = 3) -> tuple:
     """(f, args): the design objective and its traced arguments exactly as ``train_design`` hands them
     to the optimizer, so that ``loop.value_and_grad(params, args, f=f)`` is the optimizer's own value
     and gradient (one compiled program per grid and number of models)."""
@@ -461,7 +467,7 @@ def design_objective(models: ModelSet, cycle: Cycle, tf: float, dwell: float, gr
     if workspaces is None:
         workspaces = build_workspace(models.robots, cycle)
     args = (models.robots, cycle, _host_scalar(tf), _host_scalar(dwell), _canonical(scales), workspaces)
-    return DesignObjective(grid, power=float(power)), args
+    return DesignObjective(grid, order=int(order), power=float(power)), args
 
 
 def _host_scalar(v):
@@ -476,25 +482,26 @@ def _canonical(scales: Scales) -> Scales:
 
 def train_law(train: LawEvaluator, path: Path, tf: float, scales: Scales, init, *, steps: int = 100,
               learning_rate: float = 0.05, checkpoint=None, progress: bool = True, patience: int = 40,
-              label: str = "law", power: float = 1.0) -> OptResult:
+              label: str = "law", power: float = 1.0, order: int = 3) -> OptResult:
     """Optimize the shaped-law coefficients (start ``init`` (m + 1,)) on the training models of
     ``train`` (its path) at motion time tf [s] with the normalization ``scales``."""
     _check_training(tf, train.dwell, steps, learning_rate)
-    f, args = law_objective_args(train.models, path, tf, train.dwell, train.grid, scales, train.tables, power=power)
+    f, args = law_objective_args(train.models, path, tf, train.dwell, train.grid, scales, train.tables, power=power,
+                                 order=order)
     return minimize(f, jnp.asarray(init, dtype=float), args,
                     OptimizerConfig(steps=steps, learning_rate=learning_rate, decay=True, patience=patience,
                                     checkpoint=checkpoint, progress=progress, label=label, monitor=_dwell))
 
 
 def law_objective_args(models: ModelSet, path: Path, tf: float, dwell: float, grid: Grid, scales: Scales,
-                       tables=None, *, power: float = 1.0) -> tuple:
+                       tables=None, *, power: float = 1.0, order: int = 3) -> tuple:
     """(f, args): the law objective on a fixed path and its traced arguments as ``train_law`` hands
     them to the optimizer (``tables``: the path's tables for the models, built here if None)."""
     check_grid(grid)
     tables = path_tables(models.robots, path) if tables is None else tables
     args = (tables, jnp.asarray(path.length, dtype=float), _host_scalar(tf), _host_scalar(dwell), _canonical(scales),
             models.robots)
-    return LawObjective(grid, power=float(power)), args
+    return LawObjective(grid, order=int(order), power=float(power)), args
 
 
 def _check_training(tf, dwell, steps, learning_rate):

@@ -123,6 +123,24 @@ def test_shaped_family_contains_poly7_and_keeps_end_conditions():
     np.testing.assert_allclose(rnd.dds, [0.0, 0.0], atol=1e-14)
 
 
+def test_shaped_order_4_is_poly9_at_equal_coefficients_and_its_jerk_vanishes_at_the_ends():
+    """Order 4: S' = 630 eta^4 (1 - eta)^4 for g = 1 (the 9th-degree law); for any coefficients S
+    goes from 0 to 1 with zero velocity, acceleration and jerk at both ends, and the jerk leaves
+    the ends as eta^2 (order 3: as eta, with a jump of the fourth derivative there)."""
+    eta = jnp.linspace(0.0, 1.0, 41)
+    v = profile_eval(shaped(jnp.ones(4), order=4), eta)
+    x = np.asarray(eta)
+    np.testing.assert_allclose(v.ds, 630 * x**4 * (1 - x) ** 4, atol=1e-12)
+    np.testing.assert_allclose(v.s, x**5 * (126 - 420 * x + 540 * x**2 - 315 * x**3 + 70 * x**4), atol=1e-12)
+    rnd = profile_eval(shaped(jnp.array([0.3, -2.0, 1.5, 0.7, 1.1]), order=4), jnp.array([0.0, 1e-3, 1.0]))
+    np.testing.assert_allclose(np.asarray(rnd.s)[[0, 2]], [0.0, 1.0], atol=1e-14)
+    for d in (rnd.ds, rnd.dds, rnd.ddds):
+        np.testing.assert_allclose(np.asarray(d)[[0, 2]], [0.0, 0.0], atol=1e-12)
+    # near the start the jerk grows as eta^2 (order 4), not as eta (order 3)
+    j3 = profile_eval(shaped(jnp.ones(4), order=3), jnp.array([1e-3])).ddds[0]
+    assert abs(float(rnd.ddds[1])) < 1e-2 * abs(float(j3))
+
+
 def test_trapezoid_cruise_speed_and_bang_bang():
     v = profile_eval(make_profile("trap_1_4"), jnp.array([0.5]))
     np.testing.assert_allclose(v.ds, 1 / (1 - 0.25), rtol=1e-15)

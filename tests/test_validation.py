@@ -66,8 +66,8 @@ def test_bad_robot_and_cycle_parameters():
 def test_bad_profiles():
     with pytest.raises(ValueError, match=r"ta must be in \(0, 1/2\]"):
         trapezoid(0.6)
-    with pytest.raises(ValueError, match="order must be 2 or 3"):
-        shaped(jnp.ones(3), order=4)
+    with pytest.raises(ValueError, match="order must be 2, 3 or 4"):
+        shaped(jnp.ones(3), order=5)
     with pytest.raises(ValueError, match="time steps must be >= 1"):
         time_grid(0.4, 0)
     with pytest.raises(ValueError, match="unknown motion profile"):
