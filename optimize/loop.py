@@ -207,9 +207,10 @@ def minimize(f: Callable, params0, args: tuple = (), config: OptimizerConfig = O
         bar.say(f"resumed at step {step} (best {best_value:.4g})")
     offset = times[-1] if times else 0.0
     started, last_gain, stopped = time.perf_counter(), step, "steps"
+    rate = schedule(steps, float(learning_rate), decay)        # built once, evaluated per step
     while step < steps:
         # always a strongly typed float64 scalar: a change of type would retrace the update
-        lr = jnp.asarray(learning_rate_at(step, steps, float(learning_rate), decay), dtype=jnp.float64)
+        lr = jnp.asarray(rate(step), dtype=jnp.float64)
         if not bar.counting:       # the first step of this run: compiles the gradient unless done before
             with bar.waiting(f"step {step + 1} (compiling the {mode}-mode gradient unless cached)",
                              key=_compile_key(f, params, args, mode)):
