@@ -20,7 +20,7 @@ from jaxflex.robot import cycle_preset, igm, robot_preset
 from jaxflex.trajectory import task_from_arc
 from jaxflex.model_sets import ModelId
 from jaxflex.optimize.cycle_time import TORQUE_TOL
-from jaxflex.optimize.study import BLEND_FAMILY, StudyConfig, optimize_design
+from jaxflex.optimize.study import StudyConfig, optimize_design
 from jaxflex.problem import Problem, Timing
 from jaxflex.optimize.study import verify as verify_trajectories
 
@@ -53,12 +53,13 @@ def write_trajectory_csv(path_out, rows: np.ndarray) -> None:
 def design_record(study) -> dict:
     """The optimized trajectory: its path (blend family and per-corner parameters, or the best paper
     path with ``free_path=False``) and its law."""
-    law = {"law": "shaped", "order": 3, "coef": np.asarray(study.coef).tolist()}
+    law = {"law": "shaped", "order": int(study.candidates["optimized"].law.order),
+           "coef": np.asarray(study.coef).tolist()}
     if study.design is None:
         return {"path": {"blend": study.blend, "d": 0.025, "e": 0.025, "n": 3.0, "free": False}, **law}
     x = study.design
     corners = [{"d_m": float(x.d[i]), "e_m": float(x.e[i]), "n": float(x.n[i])} for i in range(2)]
-    return {"path": {"blend": BLEND_FAMILY, "corners": corners, "free": True,
+    return {"path": {"blend": study.paths["optimized"].kind, "corners": corners, "free": True,
                      "length_m": float(study.paths["optimized"].length)}, **law}
 
 

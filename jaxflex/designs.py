@@ -20,7 +20,7 @@ import numpy as np
 from jax.sharding import NamedSharding, PartitionSpec
 
 from jaxflex import checks
-from jaxflex.blends import BLENDS
+from jaxflex.blends import ALL_BLENDS
 from jaxflex.linearized import build_tables
 from jaxflex.metrics import metrics
 from jaxflex.path import Cycle, Path, check_path_args, make_path
@@ -99,7 +99,7 @@ def sweep_designs(robot: Robot, cycle: Cycle, xs: Design, *, tf: float, dwell: f
     serves every chunk. Raises ValueError on inconsistent shapes and FloatingPointError naming the
     first design with a non-finite metric."""
     tf, dwell = checks.positive("tf", tf, "s"), checks.positive("dwell", dwell, "s")
-    blend = checks.one_of("blend", blend, BLENDS)
+    blend = checks.one_of("blend", blend, ALL_BLENDS)
     check_grid(grid)
     if chunk is not None:
         chunk = checks.count("chunk", chunk)

@@ -23,24 +23,47 @@ def place_first_mode_hz(robot: Robot, cycle: Cycle) -> float:
 
 
 class ModelId(NamedTuple):
-    """Which model of a set: the payload case [kg] and the factors applied to the nominal robot
-    (payload, Young's modulus) and the damping ratio at the first mode (0: the robot's own)."""
+    """Which model of a set: the payload case [kg] and the changes applied to the nominal robot:
+    payload and Young's modulus factors, the damping ratio at the first mode (0: the robot's own),
+    changes of the proximal and distal link lengths [m] and the rotor inertia factor."""
 
     payload: float
     payload_scale: float = 1.0
     stiffness_scale: float = 1.0
     damping_ratio: float = 0.0
+    l1_delta: float = 0.0
+    l2_delta: float = 0.0
+    rotor_scale: float = 1.0
 
     @property
     def nominal(self) -> bool:
         """The nominal robot with this payload (no perturbation, no added damping)."""
-        return self.payload_scale == 1.0 and self.stiffness_scale == 1.0 and self.damping_ratio == 0.0
+        return self == ModelId(self.payload)
 
     @property
     def label(self) -> str:
         """Readable name, e.g. '6 kg x1.1, E x0.95' (JSON, tables, figures)."""
         zeta = f", zeta {self.damping_ratio:g}" if self.damping_ratio else ""
-        return f"{self.payload:g} kg x{self.payload_scale:g}, E x{self.stiffness_scale:g}{zeta}"
+        lengths = (f", l1 {self.l1_delta * 1e3:+.3g} mm, l2 {self.l2_delta * 1e3:+.3g} mm"
+                   if self.l1_delta or self.l2_delta else "")
+        rotor = f", rotor x{self.rotor_scale:.4g}" if self.rotor_scale != 1.0 else ""
+        return f"{self.payload:g} kg x{self.payload_scale:.4g}, E x{self.stiffness_scale:.4g}{zeta}{lengths}{rotor}"
+
+    def robot(self, nominal: Robot, cycle: Cycle | None = None) -> Robot:
+        """This model built from the ``nominal`` robot (its payload replaced by this case's);
+        ``cycle`` is needed for a damping ratio > 0 (stiffness-proportional Rayleigh damping with
+        that ratio at the first mode of the place pose)."""
+        host = lambda v: np.asarray(v, dtype=float)           # numpy: building a model compiles nothing
+        r = nominal.replace(payload=self.payload * self.payload_scale,
+                            young=host(nominal.young) * self.stiffness_scale,
+                            l1=host(nominal.l1) + self.l1_delta, l2=host(nominal.l2) + self.l2_delta,
+                            rotor_inertia=host(nominal.rotor_inertia) * self.rotor_scale)
+        if self.damping_ratio > 0:
+            if cycle is None:
+                raise ValueError("a model with damping needs the cycle (its first mode at the place pose)")
+            w1 = 2 * np.pi * place_first_mode_hz(r, cycle)
+            r = r.replace(damping=jnp.asarray([0.0, 2 * self.damping_ratio / w1]))
+        return r
 
 
 class ModelSet(NamedTuple):
@@ -65,15 +88,14 @@ def model_set(robot: Robot, payloads: Sequence[float], *, stiffness=(1.0,), payl
     """Every payload [kg] x Young's modulus factor x payload factor; with ``damping_ratio`` > 0 a
     stiffness-proportional (Rayleigh beta) damping giving that ratio at the first mode of the place
     pose (``cycle`` needed)."""
-    robots, ids = [], []
-    for m in payloads:
-        for k in stiffness:
-            for ps in payload_scale:
-                r = robot.replace(payload=m * ps, young=robot.young * k)
-                if damping_ratio > 0:
-                    w1 = 2 * np.pi * place_first_mode_hz(r, cycle)
-                    r = r.replace(damping=jnp.asarray([0.0, 2 * damping_ratio / w1]))
-                robots.append(r)
-                ids.append(ModelId(float(m), float(ps), float(k), float(damping_ratio)))
-    stacked = trees.stack(robots, dtype=float)
-    return ModelSet(stacked, tuple(ids))
+    ids = [ModelId(float(m), float(ps), float(k), float(damping_ratio))
+           for m in payloads for k in stiffness for ps in payload_scale]
+    return models_of(robot, ids, cycle)
+
+
+def models_of(robot: Robot, ids: Sequence[ModelId], cycle: Cycle | None = None) -> ModelSet:
+    """The models ``ids`` built from the nominal ``robot`` (``ModelId.robot``), stacked."""
+    ids = tuple(ids)
+    if not ids:
+        raise ValueError("a model set needs at least one model")
+    return ModelSet(trees.stack([i.robot(robot, cycle) for i in ids], dtype=float), ids)

@@ -32,7 +32,7 @@ from jaxflex.sweep import Case, default_grid, run_sweep
 from jaxflex.engine import LawEvaluator
 from jaxflex.model_sets import model_set
 from .objective import decode, encode
-from .study import (BLEND_FAMILY, PERTURB_E, PERTURB_PAYLOAD, StudyConfig, _check_problem, _workspaces, check_study_args, nominal_indices,
+from .study import (PERTURB_E, PERTURB_PAYLOAD, StudyConfig, _check_problem, _workspaces, check_study_args, nominal_indices,
                     reference_scales, start_design, torque_bounds, train_design, training_models, training_weights)
 
 TORQUE_TOL = 1.01   # a design counts when its peak torque is within 1 % of the bound (soft penalty)
@@ -108,7 +108,7 @@ def cycle_time_study(problem: Problem, tfs: Sequence[float] = (0.43, 0.40, 0.37,
     i_nominal = int(nominal_indices(perturbed, [payload])[0])      # the nominal model is one of them
     paper_perturbed = LawEvaluator(perturbed, make_path(cycle, blend, 0.025), tf_ref, dwell, grid, chunk=chunk)
     target_perturbed = float(np.max(paper_perturbed(make_profile(law))["dwell_residual_mm"]))
-    params = encode(cycle, start_design(cycle, n_coef))
+    params = encode(cycle, start_design(cycle, n_coef, config.blend))
     workspaces = _workspaces(models, cycle, progress)           # once for every tf
     opt_res, opt_worst, opt_tau, designs = [], [], [], []
     for tf in tfs:
@@ -116,10 +116,11 @@ def cycle_time_study(problem: Problem, tfs: Sequence[float] = (0.43, 0.40, 0.37,
                                   absolute=config.absolute)
         result = train_design(models, cycle, float(tf), dwell, grid, scales, params, steps=steps,
                               learning_rate=learning_rate, progress=progress, label=f"design tf={tf:g}",
-                              workspaces=workspaces, power=config.robust_power, order=config.law_order)
+                              workspaces=workspaces, power=config.robust_power, order=config.law_order,
+                              blend=config.blend)
         params = result.params
         x = jax.tree_util.tree_map(np.asarray, decode(cycle, params))
-        path = design_path(cycle, x, BLEND_FAMILY)
+        path = design_path(cycle, x, config.blend)
         m = LawEvaluator(perturbed, path, float(tf), dwell, grid, chunk=chunk)(shaped(x.coef, config.law_order))
         opt_res.append(float(m["dwell_residual_mm"][i_nominal]))
         opt_tau.append(float(m["max_torque_nm"][i_nominal]))

@@ -38,7 +38,7 @@ import numpy as np
 
 from jaxflex import trees
 from jaxflex import checks
-from jaxflex.blends import BLENDS
+from jaxflex.blends import BLENDS, DESIGN_BLENDS
 from jaxflex.designs import Design, design, design_path
 from jaxflex.engine import LawEvaluator
 from jaxflex.linearized import path_tables
@@ -62,6 +62,8 @@ SPANNING = ((1.0, 1.0), (0.95, 0.9), (0.95, 1.1), (1.05, 0.9), (1.05, 1.1))   # 
 DAMPING_RATIO = 0.01
 TRAINING_SETS = ("nominal", "spanning", "perturbed")
 BLEND_FAMILY = "lame"               # the optimized design's blend family (d, e, n per corner)
+START_E = {"smoothstep": 0.08}      # start: e [m] per family (default 25 mm, the paper's); the smoothstep
+                                    # blend needs a long horizontal part to spread its turn (issue 21)
 START_D_FRACTION = 0.98             # start: d = 0.98 h (d = h is the open end of the decoded range)
 ROBUST_POWER = 8.0                  # a power mean of this order over the training models is a smooth worst
                                     # case (StudyConfig(robust_power=ROBUST_POWER, absolute=True), SPEC 6)
@@ -191,10 +193,10 @@ def best_combination(dwell_residual) -> tuple[int, int]:
     return int(i), int(j)
 
 
-def start_design(cycle: Cycle, n_coef: int = 6) -> Design:
-    """The paper's Lamé path (d = 0.98 h, e = 25 mm, n = 3 at both corners) with poly7 (the shaped
-    law with equal coefficients)."""
-    return design(START_D_FRACTION * float(cycle.h), 0.025, 3.0, np.ones(n_coef))
+def start_design(cycle: Cycle, n_coef: int = 6, blend: str = BLEND_FAMILY) -> Design:
+    """The starting design: d = 0.98 h, e = ``START_E[blend]`` (default 25 mm: the paper's Lamé path
+    with n = 3) at both corners, with poly7 (the shaped law with equal coefficients)."""
+    return design(START_D_FRACTION * float(cycle.h), START_E.get(blend, 0.025), 3.0, np.ones(n_coef))
 
 
 def torque_bounds(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid: Grid,
@@ -290,6 +292,7 @@ class StudyConfig:
     absolute: bool = False
     robust_power: float = 1.0
     law_order: int = 3
+    blend: str = BLEND_FAMILY
 
 
 def _evaluators(sets: dict, paths: dict, tf: float, dwell: float, grid: Grid) -> dict:
@@ -328,8 +331,9 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
     n_coef, steps, learning_rate, train, free_path = c.n_coef, c.steps, c.learning_rate, c.train, c.free_path
     checkpoint, ruckig, progress, init = c.checkpoint, c.ruckig, c.progress, c.init
     payloads, tf, dwell = check_study_args(robot, cycle, payloads, tf, dwell, n_coef, steps, learning_rate, train)
+    checks.one_of("blend", c.blend, DESIGN_BLENDS)
     if init is not None:
-        design_path(cycle, init, BLEND_FAMILY)
+        design_path(cycle, init, c.blend)
         shaped(init.coef)
     grid = grid or default_grid(robot, [tf], dwell)
     check_grid(grid)
@@ -354,12 +358,12 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
     workspaces = _workspaces(models, cycle, progress) if free_path else None
     setup_s = time.time() - started
     if free_path:
-        x0 = init if init is not None else start_design(cycle, n_coef)
+        x0 = init if init is not None else start_design(cycle, n_coef, c.blend)
         result = train_design(models, cycle, tf, dwell, grid, scales, encode(cycle, x0), steps=steps,
                               learning_rate=learning_rate, checkpoint=checkpoint, progress=progress, label=label,
-                              workspaces=workspaces, power=c.robust_power, order=c.law_order)
+                              workspaces=workspaces, power=c.robust_power, order=c.law_order, blend=c.blend)
         x = jax.tree_util.tree_map(np.asarray, decode(cycle, result.params))
-        paths["optimized"] = design_path(cycle, x, BLEND_FAMILY)
+        paths["optimized"] = design_path(cycle, x, c.blend)
         coef = np.asarray(x.coef)
     else:
         c0 = np.ones(n_coef) if init is None else np.asarray(init.coef)
@@ -444,7 +448,8 @@ class LawObjective:
 def train_design(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid: Grid, scales: Scales,
                  init: Params, *, steps: int = 100, learning_rate: float = 0.05, checkpoint=None,
                  progress: bool = True, patience: int = 40, label: str = "design",
-                 workspaces: Workspace | None = None, power: float = 1.0, order: int = 3) -> OptResult:
+                 workspaces: Workspace | None = None, power: float = 1.0, order: int = 3,
+                 blend: str = BLEND_FAMILY) -> OptResult:
     """Optimize the design parameters (start ``init``) on ``models`` at motion time tf [s] with the
     normalization ``scales`` (Adam; learning rate warmed up, then cosine-decayed). The path tables
     inside the objective come from the models' workspace tables (``jaxflex.workspace``, built here
@@ -452,14 +457,16 @@ def train_design(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid: 
     through the model's table build. ``power``: order of the power mean over the models
     (``objective.combine``)."""
     _check_training(tf, dwell, steps, learning_rate)
-    f, args = design_objective(models, cycle, tf, dwell, grid, scales, workspaces, power=power, order=order)
+    f, args = design_objective(models, cycle, tf, dwell, grid, scales, workspaces, power=power, order=order,
+                               blend=blend)
     return minimize(f, init, args, OptimizerConfig(steps=steps, learning_rate=learning_rate, decay=True,
                                                    patience=patience, checkpoint=checkpoint, progress=progress,
                                                    label=label, monitor=_dwell))
 
 
 def design_objective(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid: Grid, scales: Scales,
-                     workspaces: Workspace | None = None, *, power: float = 1.0, order: int = 3) -> tuple:
+                     workspaces: Workspace | None = None, *, power: float = 1.0, order: int = 3,
+                     blend: str = BLEND_FAMILY) -> tuple:
     """(f, args): the design objective and its traced arguments exactly as ``train_design`` hands them
     to the optimizer, so that ``loop.value_and_grad(params, args, f=f)`` is the optimizer's own value
     and gradient (one compiled program per grid and number of models)."""
@@ -467,7 +474,7 @@ def design_objective(models: ModelSet, cycle: Cycle, tf: float, dwell: float, gr
     if workspaces is None:
         workspaces = build_workspace(models.robots, cycle)
     args = (models.robots, cycle, _host_scalar(tf), _host_scalar(dwell), _canonical(scales), workspaces)
-    return DesignObjective(grid, order=int(order), power=float(power)), args
+    return DesignObjective(grid, blend=blend, order=int(order), power=float(power)), args
 
 
 def _host_scalar(v):

@@ -1,10 +1,14 @@
-"""Corner blends: reference lengths, end conditions (G1/G2), arc-length parametrization, gradients."""
+"""Corner blends: reference lengths, end conditions (G1/G2, G3/G4 for the smooth families), arc-length
+parametrization, gradients."""
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxflex import blends
 from jaxflex.blends import BLENDS, blend_frame, make_blend
+
+SMOOTH = ("smoothstep", "polar_g4")     # polar_g3 shares polar_g4's code (its own continuity test below)
 
 D = 0.025
 frames = jax.jit(jax.vmap(blend_frame, in_axes=(None, 0)))   # one compilation per blend family
@@ -31,7 +35,7 @@ def test_symmetric_clothoid_length_closed_form():
     assert abs(float(make_blend("clothoid", D, D).length) - expected) < 1e-14
 
 
-@pytest.mark.parametrize("kind", BLENDS)
+@pytest.mark.parametrize("kind", BLENDS + SMOOTH)
 @pytest.mark.parametrize("d, e", [(0.025, 0.025), (0.02, 0.03), (0.025, 0.044)])
 def test_end_conditions(kind, d, e):
     """Start at (0,0) going +y, end at (e,d) going +x, zero curvature at both ends (G2 with lines)."""
@@ -47,7 +51,7 @@ def test_end_conditions(kind, d, e):
     assert float(jnp.linalg.norm(end.curv)) < 1e-6
 
 
-@pytest.mark.parametrize("kind", BLENDS)
+@pytest.mark.parametrize("kind", BLENDS + SMOOTH)
 def test_unit_speed_and_frame_consistency(kind):
     """|dP/ds| = 1 by central differences of positions, and autodiff derivatives match differences."""
     b = make_blend(kind, 0.02, 0.03)
@@ -94,7 +98,7 @@ def _fd(f, x, h):
     return (f(x + h) - f(x - h)) / (2 * h)
 
 
-@pytest.mark.parametrize("kind", BLENDS)
+@pytest.mark.parametrize("kind", BLENDS + ("smoothstep",))
 def test_length_gradients_match_finite_differences(kind):
     for argnum in (0, 1) if kind != "lame" else (0, 1, 2):
         args = [0.022, 0.027, 3.0]
@@ -131,3 +135,36 @@ def test_lame_order_two_is_an_ellipse_quarter():
     for s in (0.0, 0.3, 1.0):
         k = float(jnp.linalg.norm(frames(b, jnp.array([s]) * b.length).curv))
         np.testing.assert_allclose(k, 1 / 0.025, rtol=1e-8)
+
+
+@pytest.mark.parametrize("kind, order", [("lame", 2), ("clothoid", 2), ("polar", 2), ("polar_g3", 3),
+                                         ("polar_g4", 4), ("smoothstep", 4)])
+def test_continuity_order_at_the_joins(kind, order):
+    """Near a join the curvature of a G_k blend (k >= 2) grows as sigma^(k - 1), so |dK/ds| ~ sigma^(k - 2):
+    doubling the distance from the join multiplies it by 2^(k - 2) (G2: a jump of dK/ds, ratio 1; G3:
+    2; G4: 4). Checked at both ends (the distance taken from the end at the horizontal leg)."""
+    b = make_blend(kind, 0.025, 0.035, 3.0)
+    length = float(b.length)
+    h = 1e-4 * length
+    for s1, s2 in ((h, 2 * h), (length - h, length - 2 * h)):
+        f = frames(b, jnp.array([s1, s2]))
+        j = np.linalg.norm(np.asarray(f.dcurv), axis=-1)
+        # |dK/ds| includes the tangential term kappa^2 ~ sigma^(2k - 2), negligible this close to the join
+        np.testing.assert_allclose(j[1] / j[0], 2.0 ** (order - 2), rtol=0.02)
+
+
+def test_smoothstep_heading_is_a_smooth_step_of_warped_arc_length():
+    """The smoothstep blend turns by pi/2 with heading (pi/2) H(w(u)), u = s/L; its aspect e/d spans
+    the documented range at the ends of the warp bracket, and an aspect outside it is refused."""
+    b = make_blend("smoothstep", 0.0245, 0.08)
+    beta, length = float(b.coef[0]), float(b.length)
+    u = np.linspace(0.0, 1.0, 11)
+    t = np.asarray(frames(b, jnp.asarray(u * length)).tangent)
+    w = np.expm1(beta * u) / np.expm1(beta)
+    h = w**4 * (35 - 84 * w + 70 * w**2 - 20 * w**3)                  # independent: the degree-7 smooth step
+    np.testing.assert_allclose(np.arctan2(t[:, 0], t[:, 1]), 0.5 * np.pi * h, atol=1e-12)
+    for beta, bound in ((20.0, blends._SMOOTH_ASPECT[0]), (-20.0, blends._SMOOTH_ASPECT[1])):
+        x, y = np.asarray(blends._smooth_extent(jnp.asarray(beta), 1.0))
+        assert abs(x / y - bound) < 1e-3 * bound      # the validated range sits inside the bracket
+    with pytest.raises(ValueError, match="smoothstep"):
+        make_blend("smoothstep", 0.002, 0.08)
