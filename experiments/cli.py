@@ -57,12 +57,14 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("optimize", help="optimize the trajectory against the paper and industrial baselines",
                        description="Gradient-based optimization (reverse mode through the table build and "
-                                   "the whole rollout, Adam) of a design - the Lamé blend parameters d, e, n "
-                                   "of both corners and a monotone motion law - minimizing the residual "
-                                   "vibration at the place point on a set of training models; compared "
+                                   "the whole rollout, Adam) of a design - the blend parameters of both "
+                                   "corners (default family: smoothstep, G4 joins) and a monotone motion "
+                                   "law - minimizing the worst absolute residual vibration at the place "
+                                   "point over a grid of models of the uncertainty box (SPEC 6); compared "
                                    "with the best of the 12 paper combinations, its ZV/ZVD input shaping "
                                    "and a Ruckig jerk-limited profile at equal time, on the nominal, "
-                                   "perturbed (E +-5 %%, payload +-10 %%) and damped models.")
+                                   "perturbed (E +-5 %%, payload +-10 %%) and damped models and on random "
+                                   "models of the box.")
     _add_common(p)
     p.add_argument("--payload", type=float, nargs="+", default=[6.0],
                    help="payload mass(es) [kg]; several give one design robust over them (default: 6)")
@@ -72,11 +74,33 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--lr", type=float, default=0.05,
                    help="Adam learning rate (linear warm-up over the first 10 %% of the steps, then "
                         "a cosine decay to a tenth; default: %(default)s)")
-    p.add_argument("--train", default="spanning", choices=["nominal", "spanning", "perturbed"],
-                   help="training models per payload: nominal; spanning (default: nominal plus the 4 "
+    p.add_argument("--train", default="box", choices=["box", "nominal", "spanning", "perturbed"],
+                   help="training models per payload: box (default: a --box-points^2 grid over E and the "
+                        "payload mass of the uncertainty box); nominal; spanning (nominal plus the 4 "
                         "corners E x0.95/1.05, payload x0.9/1.1); perturbed (all 9: E x0.95/1/1.05, "
-                        "payload x0.9/1/1.1); nominal converges fastest and reaches the deepest nominal "
-                        "residual, the others keep the advantage under model error")
+                        "payload x0.9/1/1.1)")
+    p.add_argument("--blend", default="smoothstep",
+                   choices=["smoothstep", "lame", "polar", "polar_g3", "polar_g4"],
+                   help="blend family of the optimized path (default: %(default)s, G4 joins)")
+    p.add_argument("--objective", default="worst", choices=["worst", "relative"],
+                   help="worst (default): smooth worst case (power mean of order 8) of the absolute "
+                        "residuals over the training models; relative: weighted mean of each model's "
+                        "residual divided by the best paper combination's on that model (the old objective)")
+    p.add_argument("--box-young", type=float, default=0.05, metavar="REL",
+                   help="uncertainty box: Young's modulus half-width, relative (default: %(default)s)")
+    p.add_argument("--box-payload", type=float, default=0.10, metavar="REL",
+                   help="uncertainty box: payload half-width, relative (default: %(default)s)")
+    p.add_argument("--box-damping", type=float, nargs=2, default=[0.0, 0.01], metavar=("LOW", "HIGH"),
+                   help="uncertainty box: range of the damping ratio at the first mode (default: 0 0.01)")
+    p.add_argument("--box-length", type=float, default=0.0005, metavar="M",
+                   help="uncertainty box: link-length half-width [m] (default: %(default)s)")
+    p.add_argument("--box-rotor", type=float, default=0.10, metavar="REL",
+                   help="uncertainty box: rotor-inertia half-width, relative (default: %(default)s)")
+    p.add_argument("--box-points", type=int, default=3,
+                   help="training grid points per axis (E, payload) of the box, odd (default: %(default)s)")
+    p.add_argument("--box-samples", type=int, default=200,
+                   help="random models of the box every trajectory is evaluated on after training "
+                        "(0: none; default: %(default)s)")
     p.add_argument("--law-only", dest="free_path", action="store_false",
                    help="optimize the motion law only, on the best paper combination's path")
     p.add_argument("--verify", action="store_true",
@@ -161,15 +185,22 @@ def main(argv=None) -> int:
         elif args.command == "optimize":
             from jaxflex.experiments import optimize
 
+            from jaxflex.optimize.study import ROBUST_POWER
+            from jaxflex.uncertainty import Box
+
+            worst = args.objective == "worst"
+            study = dict(steps=args.steps, n_coef=args.coef, train=args.train, learning_rate=args.lr,
+                         blend=args.blend, absolute=worst, robust_power=ROBUST_POWER if worst else 1.0,
+                         box=Box(args.box_young, args.box_payload, tuple(args.box_damping), args.box_length,
+                                 args.box_rotor).checked(),
+                         box_points=args.box_points, box_samples=args.box_samples)
             if args.cycle_time is not None:
                 tfs = tuple(args.cycle_time) or (0.43, 0.40, 0.37, 0.34, 0.31)
-                optimize.run_cycle_time(args.preset, args.payload[0], args.tf, tfs, args.steps, args.coef,
-                                        train=args.train, out=args.out, json_path=args.json,
-                                        learning_rate=args.lr)
+                optimize.run_cycle_time(args.preset, args.payload[0], args.tf, tfs, out=args.out,
+                                        json_path=args.json, **study)
             else:
-                optimize.run(args.preset, tuple(args.payload), args.tf, args.steps, args.coef, args.train,
-                             args.free_path, out=args.out, json_path=args.json, learning_rate=args.lr,
-                             verify=args.verify)
+                optimize.run(args.preset, tuple(args.payload), args.tf, out=args.out, json_path=args.json,
+                             verify=args.verify, free_path=args.free_path, **study)
         elif args.command == "bench":
             from jaxflex.experiments import bench
 

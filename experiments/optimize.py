@@ -7,6 +7,7 @@ on the nominal, perturbed and damped models; peak torque), writes the SPEC 7 JSO
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from pathlib import Path
 
@@ -83,10 +84,27 @@ def summary(study) -> dict:
             "perturbed_ratio_worst": float(np.min(pert_ref / pert)),
             "perturbed_ratio_of_worst": float(pert_ref.max() / pert.max()),
             "damped_mm": ev["damped"][name]["dwell_residual_mm"].tolist(),
+            **(_box_summary(study, ev["box"][name]) if "box" in ev else {}),
             "max_torque_nm": nom["max_torque_nm"].tolist(),
             "residual_energy": nom["residual_energy"].tolist(),
             "metrics": {k: v.tolist() for k, v in nom.items()},
         }
+    return out
+
+
+def _box_summary(study, metrics: dict) -> dict:
+    """Per payload: the worst, the 95th percentile and the median of the dwell residual [mm] and
+    the largest peak torque [N m] over the study's random models of the uncertainty box."""
+    ids = study.sets["box"]
+    out = {"box_worst_mm": [], "box_p95_mm": [], "box_median_mm": [], "box_max_torque_nm": []}
+    for m in study.payloads:
+        k = np.asarray([i.payload == m for i in ids])
+        r = metrics["dwell_residual_mm"][k]
+        out["box_worst_mm"].append(float(r.max()))
+        out["box_p95_mm"].append(float(np.percentile(r, 95)))
+        out["box_median_mm"].append(float(np.median(r)))
+        out["box_max_torque_nm"].append(float(metrics["max_torque_nm"][k].max()))
+    out["box_mm"] = metrics["dwell_residual_mm"].tolist()
     return out
 
 
@@ -113,24 +131,29 @@ def milestones(study, factors=(5.0, 10.0)) -> dict:
 def text(rec: dict) -> str:
     """The study record as text: design, comparison table (dwell residual [mm], ratios, perturbed, damped,
     torque [N m]), optimizer timing, milestones and verification."""
+    box = "box_worst_mm" in next(iter(rec["laws"].values()))
     head = ["trajectory", "dwell [mm]", "x best paper", "perturbed worst [mm]", "x (worst/worst)",
-            "min x per model", "damped [mm]", "torque [N m]"]
+            "min x per model", "damped [mm]"] + ["box worst [mm]", "box p95 [mm]"] * box + ["torque [N m]"]
     j = lambda v: " / ".join(fmt(x, 3) for x in v)
     rows = [[k, j(v["dwell_residual_mm"]), j(v["ratio_best_paper"]), fmt(v["perturbed_worst_mm"], 3),
-             fmt(v["perturbed_ratio_of_worst"], 3), fmt(v["perturbed_ratio_worst"], 3), j(v["damped_mm"]),
-             j(v["max_torque_nm"])] for k, v in rec["laws"].items()]
+             fmt(v["perturbed_ratio_of_worst"], 3), fmt(v["perturbed_ratio_worst"], 3), j(v["damped_mm"])]
+            + ([j(v["box_worst_mm"]), j(v["box_p95_mm"])] if box else []) + [j(v["max_torque_nm"])]
+            for k, v in rec["laws"].items()]
     p = rec["design"]["path"]
     if p["free"]:
-        where = ("optimized path: Lamé blends, pick corner d = {:.1f} mm, e = {:.1f} mm, n = {:.2f}; place "
-                 "corner d = {:.1f} mm, e = {:.1f} mm, n = {:.2f}").format(
-                     *(1e3 * c[k] if k != "n" else c[k] for c in p["corners"] for k in ("d_m", "e_m", "n")))
+        shape = lambda c: f", n = {c['n']:.2f}" if p["blend"] == "lame" else ""
+        where = (f"optimized path: {p['blend']} blends, " + "; ".join(
+            f"{corner} corner d = {1e3 * c['d_m']:.1f} mm, e = {1e3 * c['e_m']:.1f} mm{shape(c)}"
+            for corner, c in zip(("pick", "place"), p["corners"])))
     else:
         where = f"law only, on the best paper path ({p['blend']}, d = e = 25 mm)"
     per = "/".join(f"{m:g}" for m in rec["payloads"])
+    nbox = len(rec.get("model_sets", {}).get("box", [])) // max(len(rec["payloads"]), 1)
     return (f"Trajectory optimization: payloads {per} kg, tf {rec['tf']:g} s; best paper combination "
             f"{rec['blend']}/{rec['best_paper']}; trained on the {rec['train']} models; {where}; torque bound "
             f"(poly7-Lame) {j(rec['torque_bound_nm'])} N m. Baselines run along the best paper path; "
-            "columns with / are per payload.\n\n"
+            "columns with / are per payload"
+            + (f"; box: {nbox} random models of the uncertainty box per payload" if box else "") + ".\n\n"
             + table(head, rows)
             + f"\n\noptimizer: {rec['steps_run']} steps, stopped: {rec['stopped']}, {rec['optimize_s']:.0f} s "
               f"(the first step, {rec['step_times_s'][0] if rec['step_times_s'] else 0:.0f} s, includes compiling "
@@ -187,13 +210,40 @@ def figure(study, out_dir: Path):
         if name == "optimized" and study.design is None:
             continue
         pts = 1e3 * (np.asarray(_path_points(study.paths[name], sigma)) - np.asarray(study.paths[name].cycle.pick))
-        label = f"{study.blend} d = e = 25 mm (best paper)" if name == "paper" else "optimized (Lamé)"
+        label = (f"{study.blend} d = e = 25 mm (best paper)" if name == "paper"
+                 else f"optimized ({study.paths['optimized'].kind})")
         ax[2].plot(pts[:, 0], pts[:, 1], label=label, **style)
     ax[2].set(xlabel="x from the pick point [mm]", ylabel="y [mm]", title="path", aspect="auto")
     ax[2].legend(fontsize=8)
     for a in ax:
         a.grid(alpha=0.3)
     save_figure(fig, out_dir / "optimized_law.png")
+
+
+def box_figure(study, robot, out_path: Path) -> None:
+    """Dwell residual [mm] of every trajectory on the random models of the uncertainty box against
+    the model's first-mode frequency error at the place pose [%] (relative to its payload's nominal
+    model), one panel per payload; ``robot``: the study's nominal robot; saved to ``out_path``."""
+    import matplotlib.pyplot as plt
+
+    from jaxflex.model_sets import place_first_mode_hz
+
+    cycle = study.paths["paper"].cycle
+    ids = study.sets["box"]
+    f_nom = {m: place_first_mode_hz(ModelId(m).robot(robot), cycle) for m in study.payloads}
+    err = np.asarray([100 * (place_first_mode_hz(i.robot(robot, cycle), cycle) / f_nom[i.payload] - 1)
+                      for i in ids])
+    fig, axes = plt.subplots(1, len(study.payloads), figsize=(6.5 * len(study.payloads), 4.2), squeeze=False)
+    for ax, m in zip(axes[0], study.payloads):
+        k = np.asarray([i.payload == m for i in ids])
+        for n, (name, ev) in enumerate(study.evaluations["box"].items()):
+            style = dict(color="k", s=10, zorder=3) if name == "optimized" else dict(color=f"C{n}", s=6, alpha=0.6)
+            ax.scatter(err[k], 1e3 * ev["dwell_residual_mm"][k], label=name, **style)
+        ax.set(yscale="log", xlabel="first-mode frequency error at the place pose [%]",
+               ylabel="dwell residual [um]", title=f"{m:g} kg, tf = {study.tf:g} s: {int(k.sum())} random models")
+        ax.grid(alpha=0.3, which="both")
+        ax.legend(fontsize=7)
+    save_figure(fig, out_path)
 
 
 def error_figure(study, out_path: Path, payload_index: int = 0):
@@ -217,19 +267,18 @@ def error_figure(study, out_path: Path, payload_index: int = 0):
     save_figure(fig, out_path)
 
 
-def compute(preset="default", payloads=(6.0,), tf=0.43, steps=100, n_coef=6, train="spanning", free_path=True,
-            out=None, learning_rate=0.05, verify=False, grid=None) -> dict:
+def compute(preset="default", payloads=(6.0,), tf=0.43, out=None, verify=False, grid=None, **study) -> dict:
     """Run the study (``optimize_design``) and return its JSON record; with ``out`` also write the
-    checkpoint (resumable), ``trajectory.csv``, the figures and ``optimize.json`` there."""
+    checkpoint (resumable), ``trajectory.csv``, the figures and ``optimize.json`` there. ``study``:
+    ``StudyConfig`` fields (steps, learning_rate, n_coef, train, free_path, blend, box, ...)."""
     started = time.time()
     robot, cycle = robot_preset(preset), cycle_preset(preset)
     ckpt = None
     if out:
         Path(out).mkdir(parents=True, exist_ok=True)
         ckpt = Path(out) / "checkpoint.npz"
-    study = optimize_design(Problem(robot, cycle, tuple(payloads), Timing(tf, 0.1, grid)),
-                            StudyConfig(steps=steps, learning_rate=learning_rate, n_coef=n_coef, train=train,
-                                        free_path=free_path, checkpoint=ckpt))
+    config = StudyConfig(checkpoint=ckpt, **study)
+    study = optimize_design(Problem(robot, cycle, tuple(payloads), Timing(tf, 0.1, grid)), config)
     rec = {"payloads": list(study.payloads), "tf": tf, "blend": study.blend, "best_paper": study.best_paper,
            "train": study.train, "design": design_record(study),
            "laws": summary(study), "torque_bound_nm": study.torque_bound.tolist(),
@@ -239,9 +288,8 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, steps=100, n_coef=6, tra
            "stopped": study.result.stopped, "optimize_s": study.result.wall_s,
            "step_times_s": list(study.result.times), "milestones": milestones(study),
            "grid": study.grid._asdict(),
-           "provenance": provenance({"preset": preset, "payloads": list(payloads), "tf": tf, "steps": steps,
-                                     "n_coef": n_coef, "train": train, "free_path": free_path,
-                                     "learning_rate": learning_rate}, started)}
+           "provenance": provenance({"preset": preset, "payloads": list(payloads), "tf": tf,
+                                     **config_record(config)}, started)}
     if out:
         out = Path(out)
         rows = trajectory_rows(robot.replace(payload=payloads[0]), study.paths["optimized"],
@@ -249,6 +297,8 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, steps=100, n_coef=6, tra
         write_trajectory_csv(out / "trajectory.csv", rows)
         figure(study, out)
         error_figure(study, out / "error_series.png")
+        if "box" in study.sets:
+            box_figure(study, robot, out / "box_residuals.png")
     if verify:
         from jaxflex.compiled import release_compiled
         from jaxflex.profiles import make_profile
@@ -263,11 +313,16 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, steps=100, n_coef=6, tra
     return rec
 
 
-def run(preset="default", payloads=(6.0,), tf=0.43, steps=100, n_coef=6, train="spanning", free_path=True,
-        out=None, json_path=None, learning_rate=0.05, verify=False) -> dict:
-    """``jaxflex optimize``: ``compute`` with the CLI's arguments (payloads [kg], tf [s]), print the text and
-    write the JSON."""
-    rec = compute(preset, payloads, tf, steps, n_coef, train, free_path, out, learning_rate, verify)
+def config_record(config: StudyConfig) -> dict:
+    """The study configuration as JSON (the box as its fields; no checkpoint or initial design)."""
+    return {f.name: (dataclasses.asdict(getattr(config, f.name)) if f.name == "box" else getattr(config, f.name))
+            for f in dataclasses.fields(config) if f.name not in ("init", "checkpoint")}
+
+
+def run(preset="default", payloads=(6.0,), tf=0.43, out=None, json_path=None, verify=False, **study) -> dict:
+    """``jaxflex optimize``: ``compute`` with the CLI's arguments (payloads [kg], tf [s], ``StudyConfig``
+    fields), print the text and write the JSON."""
+    rec = compute(preset, payloads, tf, out, verify, **study)
     print(text(rec))
     if json_path:
         write_json(json_path, rec)
@@ -302,7 +357,7 @@ def cycle_time_text(rec: dict) -> str:
                                    f"shortest tf {tf_min:g} s, {100 * red:.1f} % shorter than {rec['tf_ref']:g} s"
                                    + (" (the shortest tf tried: a lower bound on the reduction)"
                                       if tf_min <= shortest else ""))
-    return (f"Cycle-time study, {rec['payload']:g} kg: optimized design (Lamé blends and motion law, trained on "
+    return (f"Cycle-time study, {rec['payload']:g} kg: optimized design (blends and motion law, trained on "
             f"the {rec['train']} models) at each tf; target: the best paper combination at tf = {rec['tf_ref']:g} s, "
             f"dwell residual {rec['target_mm']:.4g} mm (nominal; worst over the 9 perturbed models "
             f"{rec['target_perturbed_worst_mm']:.4g} mm); peak torque bound {bound:.4g} N m at every tf "
@@ -334,20 +389,20 @@ def cycle_time_figure(rec: dict, out_path: Path):
     save_figure(fig, out_path)
 
 
-def run_cycle_time(preset="default", payload=6.0, tf_ref=0.43, tfs=(0.43, 0.40, 0.37, 0.34, 0.31), steps=100,
-                   n_coef=6, train="spanning", out=None, json_path=None, learning_rate=0.05) -> dict:
+def run_cycle_time(preset="default", payload=6.0, tf_ref=0.43, tfs=(0.43, 0.40, 0.37, 0.34, 0.31), out=None,
+                   json_path=None, **study) -> dict:
     """``jaxflex optimize --cycle-time``: a design optimized at each tf in ``tfs`` [s] for ``payload`` [kg]
-    against the best paper combination at ``tf_ref``; prints, writes JSON/figure, returns the record."""
+    against the best paper combination at ``tf_ref``; prints, writes JSON/figure, returns the record.
+    ``study``: ``StudyConfig`` fields."""
     from jaxflex.optimize.cycle_time import cycle_time_study
 
     started = time.time()
     robot, cycle = robot_preset(preset), cycle_preset(preset)
-    st = cycle_time_study(Problem(robot, cycle, (payload,), Timing(tf_ref)), tfs,
-                          StudyConfig(steps=steps, learning_rate=learning_rate, n_coef=n_coef, train=train))
+    config = StudyConfig(**study)
+    st = cycle_time_study(Problem(robot, cycle, (payload,), Timing(tf_ref)), tfs, config)
     rec = cycle_time_record(st)
     rec["provenance"] = provenance({"preset": preset, "payload": payload, "tf_ref": tf_ref, "tfs": list(tfs),
-                                    "steps": steps, "n_coef": n_coef, "train": train,
-                                    "learning_rate": learning_rate}, started)
+                                    **config_record(config)}, started)
     print(cycle_time_text(rec))
     if out:
         Path(out).mkdir(parents=True, exist_ok=True)

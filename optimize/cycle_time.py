@@ -81,6 +81,7 @@ def cycle_time_study(problem: Problem, tfs: Sequence[float] = (0.43, 0.40, 0.37,
                                                      config.train, config.progress)
     (payload,), tf_ref, dwell = check_study_args(robot, cycle, [payload], tf_ref, dwell, n_coef, steps,
                                                  learning_rate, train)
+    config = config.checked()
     tfs = np.asarray(checks.positives("tfs", tfs, "s"))
     if tf_ref not in tfs:
         tfs = np.append(tfs, tf_ref)
@@ -100,7 +101,7 @@ def cycle_time_study(problem: Problem, tfs: Sequence[float] = (0.43, 0.40, 0.37,
         print(f"cycle-time study, {payload:g} kg: best paper at tf_ref = {tf_ref:g} s is {blend}/{law}, "
               f"dwell residual {target:.4g} mm; torque bound {bound:.1f} N m; optimizing designs for "
               f"tf = {', '.join(f'{t:g}' for t in np.asarray(tfs, dtype=float))} s", flush=True)
-    models = training_models(robot, [payload], train)
+    models = training_models(robot, [payload], train, box=config.box, points=config.box_points, cycle=cycle)
     ref_eval = LawEvaluator(models, make_path(cycle, blend, 0.025), tf_ref, dwell, grid)
     bounds = torque_bounds(models, cycle, tf_ref, dwell, grid, ref_eval)       # per training model
     chunk = len(models.labels)       # every evaluator in batches of this size: one rollout program

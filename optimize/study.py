@@ -42,13 +42,14 @@ from jaxflex.blends import BLENDS, DESIGN_BLENDS
 from jaxflex.designs import Design, design, design_path
 from jaxflex.engine import LawEvaluator
 from jaxflex.linearized import path_tables
-from jaxflex.model_sets import ModelId, ModelSet, model_set, place_first_mode_hz
+from jaxflex.model_sets import ModelId, ModelSet, model_set, models_of, place_first_mode_hz
 from jaxflex.path import Cycle, Path, make_path
 from jaxflex.problem import Problem
 from jaxflex.profiles import PROFILES, make_profile, shaped
 from jaxflex.progress import Progress
 from jaxflex.robot import Robot, check_cycle_reachable
 from jaxflex.simulate import Grid, check_grid
+from jaxflex.uncertainty import Box
 from jaxflex.sweep import default_grid
 from jaxflex.workspace import Workspace, build_workspace
 
@@ -60,7 +61,7 @@ PERTURB_E = (0.95, 1.0, 1.05)
 PERTURB_PAYLOAD = (0.9, 1.0, 1.1)
 SPANNING = ((1.0, 1.0), (0.95, 0.9), (0.95, 1.1), (1.05, 0.9), (1.05, 1.1))   # (E factor, payload factor)
 DAMPING_RATIO = 0.01
-TRAINING_SETS = ("nominal", "spanning", "perturbed")
+TRAINING_SETS = ("box", "nominal", "spanning", "perturbed")
 BLEND_FAMILY = "lame"               # the optimized design's blend family (d, e, n per corner)
 START_E = {"smoothstep": 0.08}      # start: e [m] per family (default 25 mm, the paper's); the smoothstep
                                     # blend needs a long horizontal part to spread its turn (issue 21)
@@ -86,8 +87,12 @@ def check_study_args(robot: Robot, cycle: Cycle, payloads, tf, dwell, n_coef, st
     return payloads, tf, dwell
 
 
-def training_models(robot: Robot, payloads: Sequence[float], kind: str = "spanning") -> ModelSet:
-    """The models an optimization trains on (module docstring); labels name each model."""
+def training_models(robot: Robot, payloads: Sequence[float], kind: str = "spanning", *, box: Box = Box(),
+                    points: int = 3, cycle: Cycle | None = None) -> ModelSet:
+    """The models an optimization trains on (module docstring); labels name each model. ``box``:
+    ``box.grid(payloads, points)`` (``cycle`` needed if the box's low damping is > 0)."""
+    if kind == "box":
+        return models_of(robot, box.grid(payloads, points), cycle)
     if kind == "nominal":
         return model_set(robot, payloads)
     if kind == "perturbed":
@@ -213,7 +218,10 @@ def training_weights(kind: str, n_payloads: int = 1) -> np.ndarray:
     """Weights of the training models in the objective's mean (the payloads share it equally): a
     probability over the perturbation box concentrated at the nominal model. ``spanning``: 1/2 for
     the nominal model, 1/8 for each corner; ``perturbed``: Simpson's tensor weights (1, 4, 1)/6 per
-    axis (4/9 nominal, 1/9 edge midpoints, 1/36 corners); ``nominal``: 1."""
+    axis (4/9 nominal, 1/9 edge midpoints, 1/36 corners); ``nominal``: 1; ``box``: None (equal
+    weights: with the power mean of ``ROBUST_POWER`` every sample of the box counts as a worst case)."""
+    if kind == "box":
+        return None                                     # equal weights: the box's samples are its worst case
     if kind == "nominal":
         w = np.ones(1)
     elif kind == "spanning":
@@ -259,40 +267,72 @@ def scales_from_metrics(ref: dict, torque_bound, weights=None, models: ModelSet 
 
 @dataclasses.dataclass(frozen=True)
 class StudyConfig:
-    """How an optimization study runs.
+    """How an optimization study runs (defaults: the robust design of SPEC 6).
 
     steps: optimizer updates (Adam, warm-up then cosine decay of ``learning_rate``);
-    n_coef: free coefficients of the shaped motion law; train: the training models ("nominal",
-    "spanning" or "perturbed", module docstring); free_path: optimize the blends too (False: the
-    law alone on the best paper path); init: the starting design (None: ``start_design``);
-    checkpoint: a .npz file to save to and resume from; ruckig: include the Ruckig baseline (needs
-    the optional dependency); progress: report on stderr.
+    n_coef: free coefficients of the shaped motion law; train: the training models ("box" (default):
+    ``box.grid(payloads, box_points)``, per payload a box_points x box_points grid over E and the
+    payload mass; "nominal", "spanning" or "perturbed", module docstring); free_path: optimize the
+    blends too (False: the law alone on the best paper path); init: the starting design (None:
+    ``start_design``); checkpoint: a .npz file to save to and resume from; ruckig: include the
+    Ruckig baseline (needs the optional dependency); progress: report on stderr.
 
-    absolute: scale every training model by the best paper combination's residual on its payload's
-    nominal model (SPEC 6) instead of by that combination's residual on the same model;
-    robust_power: order of the power mean over the training models (1: weighted mean; ROBUST_POWER:
-    a smooth worst case); law_order: exponent r of the shaped law's end factor (3: zero velocity,
-    acceleration and jerk at both ends, poly7 at the start; 4: zero snap too, poly9 at the start).
+    absolute (default): scale every training model by the best paper combination's residual on its
+    payload's nominal model (SPEC 6); False: by that combination's residual on the same model
+    (the old objective, which follows the reference's luck); robust_power: order of the power mean
+    over the training models (1: weighted mean; ROBUST_POWER (default): a smooth worst case);
+    law_order: exponent r of the shaped law's end factor (3: zero velocity, acceleration and jerk
+    at both ends, poly7 at the start; 4: zero snap too, poly9 at the start); blend: the design's
+    blend family (``jaxflex.blends.DESIGN_BLENDS``; default "smoothstep", G4 joins).
 
-    Measured at 6 kg, tf 0.43 s, spanning set, 100 steps (nominal / worst of the 9 perturbed models /
-    damped): default 0.32 / 33.8 / 6.8 um; absolute, power 8: 23 / 35.7 / 5.6 um; law order 4:
-    1.1 / 46.5 / 8.6 um; law order 4, absolute, power 8: 5.7 / 29.0 / 3.7 um (best paper
-    combination 16.6 / 224 / 56 um). The worst case stays near 30 um in this design space (issue
-    21), so the defaults stay until a design space that lowers it."""
+    box: the uncertainty box (``jaxflex.uncertainty.Box``; default E +-5 %, payload +-10 %,
+    damping ratio 0-1 %, link lengths +-0.5 mm, rotor inertia +-10 %); box_samples: random models
+    of the box (seed ``box_seed``) on which every trajectory is evaluated after training (the
+    "box" evaluation set; 0: none).
+
+    Why these defaults (6 kg, tf 0.43 s, 100 steps; nominal / worst of the 9 perturbed models /
+    damped, dwell residual): the Lamé design space with the relative objective gave 0.32 / 33.8 /
+    6.8 um, with the absolute power-8 objective 23 / 35.7 / 5.6 um; its G2 corners excite the modes
+    over a whole band, so no weighting fixes it. The smoothstep family (G4 corners, long turns)
+    with the relative objective gives 0.02 / 3.5 / 0.28 um (a deep nominal notch, 175x shallower
+    at the worst model), with the absolute power-8 objective on the 3 x 3 grid 1.07 / 1.18 / 0.74 um
+    and at most 1.13 um over 200 random models of the box (best paper combination: 16.6 / 224 /
+    56 um)."""
 
     steps: int = 100
     learning_rate: float = 0.05
     n_coef: int = 6
-    train: str = "spanning"
+    train: str = "box"
     free_path: bool = True
     init: Design | None = None
     checkpoint: str | os.PathLike | None = None
     ruckig: bool = True
     progress: bool = True
-    absolute: bool = False
-    robust_power: float = 1.0
+    absolute: bool = True
+    robust_power: float = ROBUST_POWER
     law_order: int = 3
-    blend: str = BLEND_FAMILY
+    blend: str = "smoothstep"
+    box: Box = Box()
+    box_points: int = 3
+    box_samples: int = 200
+    box_seed: int = 0
+
+    def checked(self) -> "StudyConfig":
+        """Validate the fields that the study's own argument check does not (SPEC 8: before
+        anything compiles); ValueError naming the field."""
+        checks.one_of("blend", self.blend, DESIGN_BLENDS)
+        box = self.box.checked() if isinstance(self.box, Box) else None
+        if box is None:
+            raise ValueError(f"box must be a jaxflex.uncertainty.Box, got {type(self.box).__name__}")
+        points = checks.count("box_points", self.box_points, 1)
+        if points % 2 == 0:
+            raise ValueError(f"box_points must be odd (the grid must hold the nominal model), got {points}")
+        checks.count("box_samples", self.box_samples, 0)
+        checks.count("box_seed", self.box_seed, 0)
+        checks.positive("robust_power", self.robust_power)
+        if self.law_order not in (2, 3, 4):
+            raise ValueError(f"law_order must be 2, 3 or 4, got {self.law_order!r}")
+        return dataclasses.replace(self, box=box)
 
 
 def _evaluators(sets: dict, paths: dict, tf: float, dwell: float, grid: Grid) -> dict:
@@ -331,7 +371,7 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
     n_coef, steps, learning_rate, train, free_path = c.n_coef, c.steps, c.learning_rate, c.train, c.free_path
     checkpoint, ruckig, progress, init = c.checkpoint, c.ruckig, c.progress, c.init
     payloads, tf, dwell = check_study_args(robot, cycle, payloads, tf, dwell, n_coef, steps, learning_rate, train)
-    checks.one_of("blend", c.blend, DESIGN_BLENDS)
+    c = c.checked()
     if init is not None:
         design_path(cycle, init, c.blend)
         shaped(init.coef)
@@ -339,7 +379,7 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
     check_grid(grid)
     # the paper sweep on the training models: it gives the best combination (nominal models), the
     # torque bounds and the objective's scales (every training model) with one rollout program
-    models = training_models(robot, payloads, train)
+    models = training_models(robot, payloads, train, box=c.box, points=c.box_points, cycle=cycle)
     sweep = paper_sweep(models, cycle, tf, dwell, grid, progress=progress)
     nominal = nominal_indices(models, payloads)
     paper = {k: v[..., nominal] for k, v in sweep.metrics.items()}                 # (B, P, C)
@@ -374,13 +414,16 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
         paths["optimized"] = paths["paper"]
 
     # the evaluation sets (built after the optimizer: the damped set needs each model's first mode)
-    setup = Progress("evaluation sets (nominal, perturbed, damped)", enabled=progress)
+    names = ("nominal", "perturbed", "damped") + (("box",) if c.box_samples else ())
+    setup = Progress(f"evaluation sets ({', '.join(names)})", enabled=progress)
     with setup.waiting("models and the path tables of the best paper and the optimized paths"):
         sets = {
             "nominal": model_set(robot, payloads),
             "perturbed": model_set(robot, payloads, stiffness=PERTURB_E, payload_scale=PERTURB_PAYLOAD),
             "damped": model_set(robot, payloads, damping_ratio=DAMPING_RATIO, cycle=cycle),
         }
+        if c.box_samples:
+            sets["box"] = models_of(robot, c.box.random(payloads, c.box_samples, c.box_seed), cycle)
         evaluators = _evaluators(sets, paths, tf, dwell, grid)
     freqs = tuple(place_first_mode_hz(robot.replace(payload=m), cycle) for m in payloads)
     # baselines on the best paper path: the best law, its shaped versions (first payload's mode), Ruckig
@@ -402,8 +445,8 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
     with bar:
         for k in sets:
             evaluations[k] = {}
-            for name, c in candidates.items():
-                evaluations[k][name] = evaluators[k][c.path](c.law)
+            for name, cand in candidates.items():
+                evaluations[k][name] = evaluators[k][cand.path](cand.law)
                 bar.update(note=f"{k}: {name}")
     return DesignStudy(payloads, tf, blend, law, x, coef, result, train, models.ids, candidates, paths, evaluations,
                        {k: s.ids for k, s in sets.items()}, paper, torque_bound, limits, freqs, grid,

@@ -24,7 +24,7 @@ from jax import monitoring
 from jaxflex.experiments.cli import main
 from jaxflex.metrics import METRICS
 
-OPT = ["--payload", "6", "--tf", "0.43", "--steps", "2", "--train", "nominal"]
+OPT = ["--payload", "6", "--tf", "0.43", "--steps", "2", "--train", "nominal", "--box-samples", "4"]
 
 
 def _run(args, capsys, status=0):
@@ -87,16 +87,20 @@ def test_optimize_command_writes_its_outputs_and_resumes(tmp_path, capsys):
     out_dir, j1, j2 = tmp_path / "opt", tmp_path / "o1.json", tmp_path / "o2.json"
     _run(["optimize", *OPT, "--out", out_dir, "--json", j1], capsys)
     rec = json.loads(j1.read_text())
-    for f in ("optimize.json", "trajectory.csv", "checkpoint.npz", "optimized_law.png", "error_series.png"):
+    for f in ("optimize.json", "trajectory.csv", "checkpoint.npz", "optimized_law.png", "error_series.png",
+              "box_residuals.png"):
         assert (out_dir / f).is_file() and (out_dir / f).stat().st_size > 100, f
     assert json.loads((out_dir / "optimize.json").read_text())["laws"] == rec["laws"]
     assert rec["steps_run"] == 2 and len(rec["history"]) == 2 and rec["payloads"] == [6.0]
     assert rec["design"]["path"]["free"] is True and len(rec["design"]["path"]["corners"]) == 2
+    assert rec["design"]["path"]["blend"] == "smoothstep" and rec["design"]["order"] == 3
+    assert len(rec["model_sets"]["box"]) == 4 and rec["provenance"]["parameters"]["box"]["young"] == 0.05
     laws = rec["laws"]
     assert "optimized" in laws and any(k.endswith("(best paper)") for k in laws)
     assert any(k.endswith("+ZVD") for k in laws) and any(k.endswith("/ruckig") for k in laws)
     for v in laws.values():
-        assert len(v["perturbed_mm"]) == 9 and len(v["damped_mm"]) == 1
+        assert len(v["perturbed_mm"]) == 9 and len(v["damped_mm"]) == 1 and len(v["box_mm"]) == 4
+        assert v["box_worst_mm"][0] == max(v["box_mm"]) >= v["box_p95_mm"][0] >= v["box_median_mm"][0] > 0
         assert all(x > 0 and math.isfinite(x) for x in v["dwell_residual_mm"] + v["perturbed_mm"])
     assert all(math.isfinite(x) for x in _finite_numbers(rec))
     head, rows = _read_csv(out_dir / "trajectory.csv")

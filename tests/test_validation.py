@@ -105,6 +105,7 @@ def _entry_points():
     from jaxflex.problem import Problem, Timing
     from jaxflex.simulate import Grid
     from jaxflex.sweep import Case, run_sweep
+    from jaxflex.uncertainty import Box
 
     grid = Grid(coarse=96, fine=4, dwell_steps=100)
     bad_times = [0.0, -0.43, float("nan"), float("inf")]
@@ -132,7 +133,9 @@ def _entry_points():
             StudyConfig(**kw)),
          {"tf": bad_times, "dwell": bad_times, "payloads": [(0.0,), (-6.0,), (float("nan"),), (float("inf"),), ()],
           "steps": [-1, 2.5, float("nan")], "learning_rate": bad_times, "n_coef": [0, -2],
-          "train": ["everything"]}),
+          "train": ["everything"], "blend": ["spline", "clothoid"], "box_points": [0, 2, -3],
+          "box_samples": [-1, 2.5], "robust_power": [0.0, -8.0, float("nan")],
+          "box": [Box(young=-0.05), Box(payload=1.5), Box(damping=(0.01, 0.0)), Box(length=float("nan"))]}),
         ("train_design", lambda **kw: train_design(models, CYCLE, **{"tf": 0.43, "dwell": 0.1, "grid": grid,
                                                                       "scales": scales, "init": params, **kw}),
          {"tf": bad_times, "dwell": bad_times, "steps": [-1, 0.5], "learning_rate": bad_times}),
@@ -143,7 +146,8 @@ def _entry_points():
             Problem(ROBOT, CYCLE, (kw.pop("payloads", 6.0),), Timing(kw.pop("tf", 0.43))), kw.pop("tfs", (0.43, 0.4)),
             StudyConfig(**kw)),
          {"payloads": [0.0, *bad_payloads], "tf": bad_times, "tfs": [(0.43, 0.0), (float("nan"),), ()],
-          "steps": [-1], "learning_rate": bad_times, "train": ["all"]}),
+          "steps": [-1], "learning_rate": bad_times, "train": ["all"], "box_points": [4],
+          "box": [Box(rotor=-0.1)]}),
         ("bench", lambda **kw: bench.compute(**kw), {"repeats": [0, -1, 2.5]}),
         ("reproduce", lambda **kw: reproduce.run(**kw), {"out": ["", None]}),
     ]
