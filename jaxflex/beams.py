@@ -95,6 +95,14 @@ def mode_shapes(kind: str, n: int, xi, deriv: int = 0) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=None)
+def cross_mass(n_axial: int, n_bending: int) -> np.ndarray:
+    """(n_axial, n_bending) = int phi_axial phi_bending^T dxi: the coupling of the two mode sets of a
+    link that has both (the rotation of the link frame mixes the axial and transverse motions)."""
+    x, w = gauss_legendre(_NODES)
+    return (mode_shapes("axial", n_axial, x) * w[:, None]).T @ mode_shapes("bending", n_bending, x)
+
+
+@functools.lru_cache(maxsize=None)
 def beam_modes(kind: str, n: int) -> BeamModes:
     """Modal integrals for ``n`` modes of a 'bending' (clamped-free) or 'axial' (fixed-free) link."""
     if int(n) != n or n < 1:

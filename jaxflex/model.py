@@ -13,6 +13,13 @@ paper's Eqs. 7 and 9 are the same matrices written in the beam frame), the elast
 and the gravity energy Eq. 14-16 with the gravity vector of the robot. The payload is a point mass at
 the end effector (x, y); an optional rotor inertia acts on q_a.
 
+The richer model (``richer``; SPEC 6: it validates designs and never trains them) gives every link
+both kinds of modes: the proximal links also stretch (``n_axial_proximal`` fixed-free bar modes after
+their bending ones) and the distal links also bend (``n_bending_distal`` clamped-free modes in the
+frame of the link, after their axial ones). A link with both has the exact kinetic energy of
+Eq. 4 with u = (l xi + u_x, u_y) in its frame, which couples the two sets through the frame
+rotation (``beams.cross_mass``); its tip moves by (u_x(1), u_y(1)) in the loop closure.
+
 The loop closure f(q) = 0 (Eq. 18, deflections taken at the distal end xi = 1) is solved for q_p in
 closed form (tip of each proximal beam, then intersection of two circles whose radii are the
 stretched distal links), so the constraints hold to round-off at every evaluation. The Jacobians
@@ -34,7 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxflex import linalg
-from jaxflex.beams import beam_modes
+from jaxflex.beams import beam_modes, cross_mass
 from jaxflex.robot import Robot, check_reachable, circle_intersection, igm
 
 
@@ -53,11 +60,13 @@ class Layout(NamedTuple):
 
 
 def layout(robot: Robot) -> Layout:
-    """Coordinate layout for the robot's mode counts."""
-    nb, na = robot.n_bending, robot.n_axial
-    ne = 2 * nb + 2 * na
-    starts = np.cumsum([2, nb, na, nb])
-    sizes = (nb, na, nb, na)
+    """Coordinate layout for the robot's mode counts (each beam: its primary modes, bending for the
+    proximal and axial for the distal links, then the richer model's secondary ones)."""
+    n1 = robot.n_bending + robot.n_axial_proximal
+    n2 = robot.n_axial + robot.n_bending_distal
+    ne = 2 * n1 + 2 * n2
+    starts = np.cumsum([2, n1, n2, n1])
+    sizes = (n1, n2, n1, n2)
     e_beam = tuple(np.arange(s, s + k) for s, k in zip(starts, sizes))
     p0 = 2 + ne
     return Layout(n=p0 + 8, ne=ne, a=np.arange(2), e=np.arange(2, p0), p=np.arange(p0, p0 + 8),
@@ -81,6 +90,63 @@ def stiffness_blocks(robot: Robot):
     kb = robot.young * robot.second_moment / robot.l1**3 * jnp.asarray(bend.stiffness)
     ka = robot.young * robot.area / robot.l2 * jnp.asarray(ax.stiffness)
     return kb, ka
+
+
+def richer(robot: Robot, n: int = 3) -> Robot:
+    """The richer validation model of ``robot`` (SPEC 6): every link flexible in bending and in
+    tension-compression, ``n`` modes of each kind it lacks (axial on the proximal, bending on the
+    distal links) added to its own."""
+    return robot.replace(n_axial_proximal=int(n), n_bending_distal=int(n))
+
+
+def _secondary(robot: Robot):
+    """The richer model's extra mode data: (proximal axial modes, distal bending modes, proximal
+    cross integrals, distal cross integrals, K_proximal_axial, K_distal_bending); None parts if absent."""
+    nap, nbd = robot.n_axial_proximal, robot.n_bending_distal
+    pa = beam_modes("axial", nap) if nap else None
+    db = beam_modes("bending", nbd) if nbd else None
+    cp = jnp.asarray(cross_mass(nap, robot.n_bending)) if nap else None
+    cd = jnp.asarray(cross_mass(robot.n_axial, nbd)) if nbd else None
+    kpa = robot.young * robot.area / robot.l1 * jnp.asarray(pa.stiffness) if nap else None
+    kdb = robot.young * robot.second_moment / robot.l2**3 * jnp.asarray(db.stiffness) if nbd else None
+    return pa, db, cp, cd, kpa, kdb
+
+
+def _beam_parts(robot: Robot, qe_beams):
+    """Each beam's elastic coordinates split into (bending, axial) parts (None where absent)."""
+    nb, na = robot.n_bending, robot.n_axial
+    e11, e12, e21, e22 = qe_beams
+    prox = lambda e: (e[:nb], e[nb:] if robot.n_axial_proximal else None)
+    dist = lambda e: (e[na:] if robot.n_bending_distal else None, e[:na])
+    return prox(e11), dist(e12), prox(e21), dist(e22)
+
+
+def _two_set_beam_mass(m, l, bend, ax, cross, th, qb, qx, axial_first: bool):
+    """Mass matrix (3 + nb + na) of a beam with bending (qb) and axial (qx) modes, coordinates
+    [x_A, y_A, theta, first set, second set] (axial first if ``axial_first``): the exact integral of
+    Eq. 4 with the position A + R(theta) (l xi + phi_x . qx, phi_b . qb); ``cross`` (na, nb) =
+    int phi_x phi_b^T."""
+    r = _rot(th)
+    pb, px = jnp.asarray(bend.phi_int), jnp.asarray(ax.phi_int)
+    mb, mx = jnp.asarray(bend.mass), jnp.asarray(ax.mass)
+    nb, nx = pb.shape[0], px.shape[0]
+    m_at = m * r @ jnp.stack([-pb @ qb, 0.5 * l + px @ qx])
+    m_ab = m * r @ jnp.stack([jnp.zeros(nb), pb])
+    m_ax = m * r @ jnp.stack([px, jnp.zeros(nx)])
+    m_tt = m * (l * l / 3.0 + 2.0 * l * jnp.asarray(ax.xi_phi_int) @ qx + qx @ mx @ qx + qb @ mb @ qb)
+    m_tb = m * (l * jnp.asarray(bend.xi_phi_int) + cross.T @ qx)          # int (l xi + u_x) phi_b
+    m_tx = -m * (cross @ qb)                                                # int (-u_y) phi_x
+    zbx = jnp.zeros((nb, nx))
+    if axial_first:
+        m_aq, m_tq = jnp.concatenate([m_ax, m_ab], axis=1), jnp.concatenate([m_tx, m_tb])
+        m_qq = jnp.block([[m * mx, zbx.T], [zbx, m * mb]])
+    else:
+        m_aq, m_tq = jnp.concatenate([m_ab, m_ax], axis=1), jnp.concatenate([m_tb, m_tx])
+        m_qq = jnp.block([[m * mb, zbx], [zbx.T, m * mx]])
+    top = jnp.concatenate([m * jnp.eye(2), m_at[:, None], m_aq], axis=1)
+    mid = jnp.concatenate([m_at, m_tt[None], m_tq])[None]
+    bot = jnp.concatenate([m_aq.T, m_tq[:, None], m_qq], axis=1)
+    return jnp.concatenate([top, mid, bot], axis=0)
 
 
 def _bending_beam_mass(m, l, modes, th, qe):
@@ -126,12 +192,18 @@ def mass_matrix(robot: Robot, q) -> jax.Array:
     m1, m2 = _masses(robot)
     bend, ax = beam_modes("bending", robot.n_bending), beam_modes("axial", robot.n_axial)
     out = jnp.zeros((lay.n, lay.n))
+    pa, db, cp, cd, _, _ = _secondary(robot)
+    p11, p12, p21, p22 = _beam_parts(robot, (e11, e12, e21, e22))
+    prox = lambda th, e, parts: (_bending_beam_mass(m1, robot.l1, bend, th, e) if pa is None else
+                                 _two_set_beam_mass(m1, robot.l1, bend, pa, cp, th, *parts, axial_first=False))
+    dist = lambda th, e, parts: (_axial_beam_mass(m2, robot.l2, ax, th, e) if db is None else
+                                 _two_set_beam_mass(m2, robot.l2, db, ax, cd, th, *parts, axial_first=True))
     blocks = [
         # (beam mass matrix, full-coordinate indices of its [theta, q_e] or [x, y, theta, q_e])
-        (_bending_beam_mass(m1, robot.l1, bend, qa[0], e11)[2:, 2:], np.r_[lay.a[0], lay.e_beam[0]]),
-        (_axial_beam_mass(m2, robot.l2, ax, b12[2], e12), np.r_[lay.base12, lay.e_beam[1]]),
-        (_bending_beam_mass(m1, robot.l1, bend, qa[1], e21)[2:, 2:], np.r_[lay.a[1], lay.e_beam[2]]),
-        (_axial_beam_mass(m2, robot.l2, ax, b22[2], e22), np.r_[lay.base22, lay.e_beam[3]]),
+        (prox(qa[0], e11, p11)[2:, 2:], np.r_[lay.a[0], lay.e_beam[0]]),
+        (dist(b12[2], e12, p12), np.r_[lay.base12, lay.e_beam[1]]),
+        (prox(qa[1], e21, p21)[2:, 2:], np.r_[lay.a[1], lay.e_beam[2]]),
+        (dist(b22[2], e22, p22), np.r_[lay.base22, lay.e_beam[3]]),
     ]
     for block, idx in blocks:
         out = out.at[np.ix_(idx, idx)].add(block)
@@ -144,15 +216,26 @@ def potential(robot: Robot, q) -> jax.Array:
     """Elastic (Eq. 10-13) plus gravitational (Eq. 14-16) potential energy [J]; gravity force = m g."""
     lay, qa, (e11, e12, e21, e22), b12, b22, x = _split(robot, q)
     kb, ka = stiffness_blocks(robot)
-    elastic = 0.5 * (e11 @ kb @ e11 + e21 @ kb @ e21 + e12 @ ka @ e12 + e22 @ ka @ e22)
+    sa, sb, _, _, kpa, kdb = _secondary(robot)
+    p11, p12, p21, p22 = _beam_parts(robot, (e11, e12, e21, e22))
+    if sa is None and sb is None:
+        elastic = 0.5 * (e11 @ kb @ e11 + e21 @ kb @ e21 + e12 @ ka @ e12 + e22 @ ka @ e22)
+    else:
+        elastic = 0.5 * (p11[0] @ kb @ p11[0] + p21[0] @ kb @ p21[0] + p12[1] @ ka @ p12[1] + p22[1] @ ka @ p22[1])
+        if sa is not None:
+            elastic = elastic + 0.5 * (p11[1] @ kpa @ p11[1] + p21[1] @ kpa @ p21[1])
+        if sb is not None:
+            elastic = elastic + 0.5 * (p12[0] @ kdb @ p12[0] + p22[0] @ kdb @ p22[0])
     m1, m2 = _masses(robot)
     bend, ax = beam_modes("bending", robot.n_bending), beam_modes("axial", robot.n_axial)
     pb, pa = jnp.asarray(bend.phi_int), jnp.asarray(ax.phi_int)
     # mean position of each beam: base + R(theta) * mean of [l xi + u_x, u_y]
-    c1 = robot.bases[0] + _rot(qa[0]) @ jnp.stack([0.5 * robot.l1, pb @ e11])
-    c2 = b12[:2] + _rot(b12[2]) @ jnp.stack([0.5 * robot.l2 + pa @ e12, 0.0])
-    c3 = robot.bases[1] + _rot(qa[1]) @ jnp.stack([0.5 * robot.l1, pb @ e21])
-    c4 = b22[:2] + _rot(b22[2]) @ jnp.stack([0.5 * robot.l2 + pa @ e22, 0.0])
+    stretch = lambda parts: 0.0 if sa is None else jnp.asarray(sa.phi_int) @ parts[1]
+    sway = lambda parts: 0.0 if sb is None else jnp.asarray(sb.phi_int) @ parts[0]
+    c1 = robot.bases[0] + _rot(qa[0]) @ jnp.stack([0.5 * robot.l1 + stretch(p11), pb @ p11[0]])
+    c2 = b12[:2] + _rot(b12[2]) @ jnp.stack([0.5 * robot.l2 + pa @ p12[1], sway(p12)])
+    c3 = robot.bases[1] + _rot(qa[1]) @ jnp.stack([0.5 * robot.l1 + stretch(p21), pb @ p21[0]])
+    c4 = b22[:2] + _rot(b22[2]) @ jnp.stack([0.5 * robot.l2 + pa @ p22[1], sway(p22)])
     g = robot.gravity
     grav = -(m1 * g @ (c1 + c3) + m2 * g @ (c2 + c4) + robot.payload * g @ x)
     return elastic + grav
@@ -166,33 +249,56 @@ def damping_forces(robot: Robot, qd) -> jax.Array:
     bend, ax = beam_modes("bending", robot.n_bending), beam_modes("axial", robot.n_axial)
     alpha, beta = robot.damping[0], robot.damping[1]
     out = jnp.zeros(lay.n)
-    for idx, k, mm in zip(lay.e_beam, (kb, ka, kb, ka),
-                          (m1 * bend.mass, m2 * ax.mass, m1 * bend.mass, m2 * ax.mass)):
+    mp, md = m1 * jnp.asarray(bend.mass), m2 * jnp.asarray(ax.mass)
+    sa, sb, _, _, kpa, kdb = _secondary(robot)
+    if sa is not None:                       # block-diagonal: the two sets are orthogonal in the frame
+        mp, kb = jax.scipy.linalg.block_diag(mp, m1 * jnp.asarray(sa.mass)), jax.scipy.linalg.block_diag(kb, kpa)
+    if sb is not None:
+        md, ka = jax.scipy.linalg.block_diag(md, m2 * jnp.asarray(sb.mass)), jax.scipy.linalg.block_diag(ka, kdb)
+    for idx, k, mm in zip(lay.e_beam, (kb, ka, kb, ka), (mp, md, mp, md)):
         out = out.at[idx].set((alpha * jnp.asarray(mm) + beta * k) @ qd[idx])
     return out
 
 
 def tip_deflections(robot: Robot, qe):
-    """Deflections at xi = 1: (u_y11, u_x12, u_y21, u_x22) [m] from the elastic coordinates (ne,)."""
+    """Deflections at xi = 1: (u_y11, u_x12, u_y21, u_x22) [m] from the elastic coordinates (ne,)
+    (the primary modes of each link; ``secondary_tips`` gives the richer model's others)."""
     lay = layout(robot)
     off = lay.e[0]
     bend, ax = beam_modes("bending", robot.n_bending), beam_modes("axial", robot.n_axial)
     tips = (bend.tip, ax.tip, bend.tip, ax.tip)
-    return tuple(jnp.asarray(t) @ qe[idx - off] for t, idx in zip(tips, lay.e_beam))
+    sizes = (robot.n_bending, robot.n_axial, robot.n_bending, robot.n_axial)
+    return tuple(jnp.asarray(t) @ qe[idx[:n] - off] for t, idx, n in zip(tips, lay.e_beam, sizes))
+
+
+def secondary_tips(robot: Robot, qe):
+    """The richer model's tip deflections (u_x11, u_y12, u_x21, u_y22) [m] (axial stretch of the
+    proximal and transverse deflection of the distal links at xi = 1), None for the paper's model."""
+    sa, sb, *_ = _secondary(robot)
+    if sa is None and sb is None:
+        return None
+    lay = layout(robot)
+    off = lay.e[0]
+    nb, na = robot.n_bending, robot.n_axial
+    prox = lambda idx: 0.0 if sa is None else jnp.asarray(sa.tip) @ qe[idx[nb:] - off]
+    dist = lambda idx: 0.0 if sb is None else jnp.asarray(sb.tip) @ qe[idx[na:] - off]
+    e11, e12, e21, e22 = lay.e_beam
+    return prox(e11), dist(e12), prox(e21), dist(e22)
 
 
 def constraints(robot: Robot, q) -> jax.Array:
     """Loop-closure constraints f1..f8 of Eq. 18 (8,) [m]."""
     lay, qa, (e11, e12, e21, e22), b12, b22, x = _split(robot, q)
     u11, u12, u21, u22 = tip_deflections(robot, q[lay.e])
+    s11, s12, s21, s22 = secondary_tips(robot, q[lay.e]) or (0.0, 0.0, 0.0, 0.0)
     f12 = x - b12[:2] - robot.l2 * jnp.stack([jnp.cos(b12[2]), jnp.sin(b12[2])]) \
-        - _rot(b12[2]) @ jnp.stack([u12, 0.0])
+        - _rot(b12[2]) @ jnp.stack([u12, s12])
     f34 = x - b22[:2] - robot.l2 * jnp.stack([jnp.cos(b22[2]), jnp.sin(b22[2])]) \
-        - _rot(b22[2]) @ jnp.stack([u22, 0.0])
+        - _rot(b22[2]) @ jnp.stack([u22, s22])
     f56 = b12[:2] - robot.bases[0] - robot.l1 * jnp.stack([jnp.cos(qa[0]), jnp.sin(qa[0])]) \
-        - _rot(qa[0]) @ jnp.stack([0.0, u11])
+        - _rot(qa[0]) @ jnp.stack([s11, u11])
     f78 = b22[:2] - robot.bases[1] - robot.l1 * jnp.stack([jnp.cos(qa[1]), jnp.sin(qa[1])]) \
-        - _rot(qa[1]) @ jnp.stack([0.0, u21])
+        - _rot(qa[1]) @ jnp.stack([s21, u21])
     return jnp.concatenate([f12, f34, f56, f78])
 
 
@@ -206,11 +312,24 @@ def constraint_jacobians(robot: Robot, q):
 def passive(robot: Robot, qa, qe) -> jax.Array:
     """Passive coordinates q_p (8,) solving f(q) = 0 in closed form for given q_a (2,), q_e (ne,)."""
     u11, u12, u21, u22 = tip_deflections(robot, qe)
-    a12 = robot.bases[0] + _rot(qa[0]) @ jnp.stack([robot.l1, u11])
-    a22 = robot.bases[1] + _rot(qa[1]) @ jnp.stack([robot.l1, u21])
-    x = circle_intersection(a12, robot.l2 + u12, a22, robot.l2 + u22, robot.assembly)
+    sec = secondary_tips(robot, qe)
+    if sec is None:
+        a12 = robot.bases[0] + _rot(qa[0]) @ jnp.stack([robot.l1, u11])
+        a22 = robot.bases[1] + _rot(qa[1]) @ jnp.stack([robot.l1, u21])
+        x = circle_intersection(a12, robot.l2 + u12, a22, robot.l2 + u22, robot.assembly)
+        d1, d2 = x - a12, x - a22
+        t12, t22 = jnp.arctan2(d1[1], d1[0]), jnp.arctan2(d2[1], d2[0])
+        return jnp.concatenate([a12, t12[None], a22, t22[None], x])
+    # richer model: the distal tip sits at (l2 + u_x, u_y) in the link frame, at the distance
+    # rho = |(l2 + u_x, u_y)| from the elbow and the angle atan2(u_y, l2 + u_x) off the frame's axis
+    s11, s12, s21, s22 = sec
+    a12 = robot.bases[0] + _rot(qa[0]) @ jnp.stack([robot.l1 + s11, u11])
+    a22 = robot.bases[1] + _rot(qa[1]) @ jnp.stack([robot.l1 + s21, u21])
+    r1, r2 = robot.l2 + u12, robot.l2 + u22
+    x = circle_intersection(a12, jnp.sqrt(r1**2 + s12**2), a22, jnp.sqrt(r2**2 + s22**2), robot.assembly)
     d1, d2 = x - a12, x - a22
-    t12, t22 = jnp.arctan2(d1[1], d1[0]), jnp.arctan2(d2[1], d2[0])
+    t12 = jnp.arctan2(d1[1], d1[0]) - jnp.arctan2(s12, r1)
+    t22 = jnp.arctan2(d2[1], d2[0]) - jnp.arctan2(s22, r2)
     return jnp.concatenate([a12, t12[None], a22, t22[None], x])
 
 

@@ -31,7 +31,9 @@ class Robot:
 
     Static fields: ``modes`` working mode (m1, m2) in {+1, -1}^2; ``assembly`` +1/-1;
     ``n_bending`` and ``n_axial`` numbers of assumed modes of the proximal (bending) and distal (axial)
-    links.
+    links; ``n_axial_proximal`` and ``n_bending_distal`` (default 0, the paper's model) add tension-
+    compression modes to the proximal links and bending modes to the distal links: the richer model
+    (``jaxflex.model.richer``) that validates designs and never trains them (SPEC 6).
     """
 
     l1: jax.Array
@@ -48,6 +50,8 @@ class Robot:
     assembly: int = dataclasses.field(metadata=dict(static=True), default=1)
     n_bending: int = dataclasses.field(metadata=dict(static=True), default=3)
     n_axial: int = dataclasses.field(metadata=dict(static=True), default=3)
+    n_axial_proximal: int = dataclasses.field(metadata=dict(static=True), default=0)
+    n_bending_distal: int = dataclasses.field(metadata=dict(static=True), default=0)
 
     @property
     def area(self):
@@ -67,7 +71,7 @@ class Robot:
 
     def replace(self, **changes) -> "Robot":
         """Copy with fields replaced (values are converted to float64 arrays)."""
-        static = {"modes", "assembly", "n_bending", "n_axial"}
+        static = {"modes", "assembly", "n_bending", "n_axial", "n_axial_proximal", "n_bending_distal"}
         conv = {k: (v if k in static else jnp.asarray(v, dtype=float) if isinstance(v, jax.Array)
                     else jax.device_put(np.asarray(v, dtype=np.float64))) for k, v in changes.items()}
         out = dataclasses.replace(self, **conv)

@@ -51,7 +51,13 @@ def default_grid(robot: Robot, tfs, dwell: float, dt: float | None = None) -> Gr
     from jaxflex.beams import bending_roots
     bend = bending_roots(robot.n_bending)[-1] ** 2 / float(robot.l1) ** 2 * math.sqrt(
         float(robot.young) * float(robot.second_moment) / (float(robot.rho) * float(robot.area)))
-    omega = 2.0 * max(axial, bend)
+    ei_rho_a = math.sqrt(float(robot.young) * float(robot.second_moment) / (float(robot.rho) * float(robot.area)))
+    extra = [0.0]                                       # the richer model's modes (jaxflex.model.richer)
+    if robot.n_axial_proximal:
+        extra.append((2 * robot.n_axial_proximal - 1) * math.pi / 2 * c / float(robot.l1))
+    if robot.n_bending_distal:
+        extra.append(bending_roots(robot.n_bending_distal)[-1] ** 2 / float(robot.l2) ** 2 * ei_rho_a)
+    omega = 2.0 * max(axial, bend, *extra)
     h = max(tf_max / (coarse * fine), dwell / dwell_steps)
     return Grid(coarse=coarse, fine=fine, dwell_steps=dwell_steps, squarings=squarings_for(4 * omega * h))
 

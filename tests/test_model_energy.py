@@ -10,7 +10,9 @@ forces the gradient of that potential. Then the reduced equations of motion must
 balance Q . q_i' = dE/dt + q'^T D q' for any state and any accelerations (Lagrange's equations), which
 ties the Coriolis/centrifugal terms, the constraint acceleration term and the velocity map to the
 energies. Together these catch a wrong mass, stiffness, gravity, damping or inertial term anywhere in
-the model, and an asymmetry between the two arms (mirror test). Everything here is exact to
+the model, and an asymmetry between the two arms (mirror test). Every check runs on the paper's model
+and on the richer validation model (``model.richer``: every link in bending and tension), whose
+continuum description here simply places both displacement fields on every beam. Everything here is exact to
 round-off, so the tolerances are 1e-9 or tighter: a 5 % error in any term is far outside them.
 """
 import jax
@@ -36,22 +38,30 @@ def _split(robot, q):
     return (q[lay.a], tuple(q[i] for i in lay.e_beam), q[lay.base12], q[lay.base22], q[lay.ee])
 
 
-def _shapes(robot, xi, deriv=0):
-    return (jnp.asarray(mode_shapes("bending", robot.n_bending, xi, deriv)),
-            jnp.asarray(mode_shapes("axial", robot.n_axial, xi, deriv)))
+def _fields(robot, beams, xi, deriv=0):
+    """Displacement fields (u_x, u_y) (or their deriv-th xi-derivatives), each (m,), of the beams
+    11, 12, 21, 22 in their frames: proximal links bend (then stretch, richer model), distal links
+    stretch (then bend); a missing field is zero."""
+    nb, na, nap, nbd = robot.n_bending, robot.n_axial, robot.n_axial_proximal, robot.n_bending_distal
+    shape = lambda kind, n: (jnp.asarray(mode_shapes(kind, n, xi, deriv)) if n
+                             else jnp.zeros((len(np.atleast_1d(xi)), 0)))
+    pb, pa, pap, pbd = shape("bending", nb), shape("axial", na), shape("axial", nap), shape("bending", nbd)
+    prox = lambda e: (pap @ e[nb:], pb @ e[:nb])
+    dist = lambda e: (pa @ e[:na], pbd @ e[na:])
+    e11, e12, e21, e22 = beams
+    return prox(e11), dist(e12), prox(e21), dist(e22)
 
 
 def _points(robot, q, xi):
     """Positions (4, m, 2) of the points xi (m,) of the beams 11, 12, 21, 22 in the plane, from the
     beam kinematics of the paper (Eq. 5): base + R(theta) [l xi + u_x, u_y]."""
-    qa, (e11, e12, e21, e22), b12, b22, _ = _split(robot, q)
-    pb, pa = _shapes(robot, xi)
-    z = jnp.zeros_like(jnp.asarray(xi))
+    qa, beams, b12, b22, _ = _split(robot, q)
+    (x11, y11), (x12, y12), (x21, y21), (x22, y22) = _fields(robot, beams, xi)
     bases = robot.bases
-    p11 = bases[0][None] + _rot(qa[0], jnp.stack([robot.l1 * xi, pb @ e11], -1))
-    p21 = bases[1][None] + _rot(qa[1], jnp.stack([robot.l1 * xi, pb @ e21], -1))
-    p12 = b12[None, :2] + _rot(b12[2], jnp.stack([robot.l2 * xi + pa @ e12, z], -1))
-    p22 = b22[None, :2] + _rot(b22[2], jnp.stack([robot.l2 * xi + pa @ e22, z], -1))
+    p11 = bases[0][None] + _rot(qa[0], jnp.stack([robot.l1 * xi + x11, y11], -1))
+    p21 = bases[1][None] + _rot(qa[1], jnp.stack([robot.l1 * xi + x21, y21], -1))
+    p12 = b12[None, :2] + _rot(b12[2], jnp.stack([robot.l2 * xi + x12, y12], -1))
+    p22 = b22[None, :2] + _rot(b22[2], jnp.stack([robot.l2 * xi + x22, y22], -1))
     return jnp.stack([p11, p12, p21, p22])
 
 
@@ -71,15 +81,16 @@ def kinetic_energy(robot, q, qd):
 
 
 def elastic_energy(robot, qe_beams):
-    """1/2 int EI u''^2 dx (proximal, bending) + 1/2 int EA u'^2 dx (distal, axial) [J]."""
+    """Sum over the beams of 1/2 int EI u_y''^2 dx + 1/2 int EA u_x'^2 dx [J] (the paper's model:
+    bending of the proximal, tension of the distal links)."""
     area = np.pi * robot.diameter**2 / 4
     inertia = np.pi * robot.diameter**4 / 64
-    d2b, _ = _shapes(robot, XI, 2)
-    _, d1a = _shapes(robot, XI, 1)
-    e11, e12, e21, e22 = qe_beams
-    bend = sum(robot.young * inertia / robot.l1**3 * 0.5 * W @ (d2b @ e) ** 2 for e in (e11, e21))
-    axial = sum(robot.young * area / robot.l2 * 0.5 * W @ (d1a @ e) ** 2 for e in (e12, e22))
-    return bend + axial
+    first, second = _fields(robot, qe_beams, XI, 1), _fields(robot, qe_beams, XI, 2)
+    lengths = (robot.l1, robot.l2, robot.l1, robot.l2)
+    out = 0.0
+    for (ux1, _), (_, uy2), l in zip(first, second, lengths):
+        out = out + robot.young * inertia / l**3 * 0.5 * W @ uy2**2 + robot.young * area / l * 0.5 * W @ ux1**2
+    return out
 
 
 def potential_energy(robot, q):
@@ -94,10 +105,8 @@ def dissipation(robot, qd):
     """Rayleigh dissipation function alpha T_el(q_e') + beta V_el(q_e'), T_el the kinetic energy of the
     deformation rates in the beam frames [W]."""
     _, beams, _, _, _ = _split(robot, qd)
-    pb, pa = _shapes(robot, XI)
     m = _link_masses(robot)
-    shapes = (pb, pa, pb, pa)
-    t_el = sum(0.5 * mk * W @ (s @ e) ** 2 for mk, s, e in zip(m, shapes, beams))
+    t_el = sum(0.5 * mk * W @ (ux**2 + uy**2) for mk, (ux, uy) in zip(m, _fields(robot, beams, XI)))
     return robot.damping[0] * t_el + robot.damping[1] * elastic_energy(robot, beams)
 
 
@@ -109,10 +118,11 @@ def tip_constraints(robot, q):
     return jnp.concatenate([x - tips[1], x - tips[3], b12[:2] - tips[0], b22[:2] - tips[2]])
 
 
-@pytest.fixture(scope="module")
-def robot():
+@pytest.fixture(scope="module", params=["paper", "richer"])
+def robot(request):
     # non-default values everywhere (rotor inertia, damping, a tilted gravity) so that every term is on
-    return robot_preset("default", payload=6.0, rotor_inertia=3e-4, damping=(3.0, 2e-5), gravity=(1.5, 9.81))
+    r = robot_preset("default", payload=6.0, rotor_inertia=3e-4, damping=(3.0, 2e-5), gravity=(1.5, 9.81))
+    return r if request.param == "paper" else mdl.richer(r, 2)
 
 
 def _random_state(robot, seed, scale_e=1e-2):
@@ -198,10 +208,11 @@ def test_reduced_equations_satisfy_the_power_balance(robot):
     rng = np.random.default_rng(8)
     qa = igm(robot, jnp.array([0.06, 0.29]))
     power = jax.jit(lambda *a: _power_terms(robot, *a))
+    ne = mdl.layout(robot).ne
     for scale in (1e-3, 1e-6):
-        qe, qed = jnp.asarray(rng.normal(size=12) * scale), jnp.asarray(rng.normal(size=12) * 1e3 * scale)
+        qe, qed = jnp.asarray(rng.normal(size=ne) * scale), jnp.asarray(rng.normal(size=ne) * 1e3 * scale)
         qad, qadd = jnp.asarray(rng.normal(size=2) * 5.0), jnp.asarray(rng.normal(size=2) * 50.0)
-        qedd = jnp.asarray(rng.normal(size=12) * 1e5 * scale)
+        qedd = jnp.asarray(rng.normal(size=ne) * 1e5 * scale)
         p, de, diss = (float(v) for v in power(qa, qe, qad, qed, qadd, qedd))
         # each side is a sum of terms up to |tau . qa'| ~ 1e3 W: round-off ~1e-12 of them
         size = max(abs(p), abs(de), abs(diss), 1.0)
