@@ -101,6 +101,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--box-samples", type=int, default=200,
                    help="random models of the box every trajectory is evaluated on after training "
                         "(0: none; default: %(default)s)")
+    p.add_argument("--richer-modes", type=int, default=3,
+                   help="modes of each kind added to every link of the richer validation model (every "
+                        "link in bending and tension) every trajectory is evaluated on (0: none; "
+                        "default: %(default)s)")
     p.add_argument("--law-only", dest="free_path", action="store_false",
                    help="optimize the motion law only, on the best paper combination's path")
     p.add_argument("--verify", action="store_true",
@@ -193,7 +197,7 @@ def main(argv=None) -> int:
                          blend=args.blend, absolute=worst, robust_power=ROBUST_POWER if worst else 1.0,
                          box=Box(args.box_young, args.box_payload, tuple(args.box_damping), args.box_length,
                                  args.box_rotor).checked(),
-                         box_points=args.box_points, box_samples=args.box_samples)
+                         box_points=args.box_points, box_samples=args.box_samples, richer_modes=args.richer_modes)
             if args.cycle_time is not None:
                 tfs = tuple(args.cycle_time) or (0.43, 0.40, 0.37, 0.34, 0.31)
                 optimize.run_cycle_time(args.preset, args.payload[0], args.tf, tfs, out=args.out,

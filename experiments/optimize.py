@@ -85,6 +85,8 @@ def summary(study) -> dict:
             "perturbed_ratio_of_worst": float(pert_ref.max() / pert.max()),
             "damped_mm": ev["damped"][name]["dwell_residual_mm"].tolist(),
             **(_box_summary(study, ev["box"][name]) if "box" in ev else {}),
+            **({"richer_mm": ev["richer"][name]["dwell_residual_mm"].tolist(),
+                "richer_max_torque_nm": ev["richer"][name]["max_torque_nm"].tolist()} if "richer" in ev else {}),
             "max_torque_nm": nom["max_torque_nm"].tolist(),
             "residual_energy": nom["residual_energy"].tolist(),
             "metrics": {k: v.tolist() for k, v in nom.items()},
@@ -131,14 +133,16 @@ def milestones(study, factors=(5.0, 10.0)) -> dict:
 def text(rec: dict) -> str:
     """The study record as text: design, comparison table (dwell residual [mm], ratios, perturbed, damped,
     torque [N m]), optimizer timing, milestones and verification."""
-    box = "box_worst_mm" in next(iter(rec["laws"].values()))
-    head = ["trajectory", "dwell [mm]", "x best paper", "perturbed worst [mm]", "x (worst/worst)",
-            "min x per model", "damped [mm]"] + ["box worst [mm]", "box p95 [mm]"] * box + ["torque [N m]"]
+    first = next(iter(rec["laws"].values()))
+    box, rich = "box_worst_mm" in first, "richer_mm" in first
+    head = (["trajectory", "dwell [mm]", "x best paper", "perturbed worst [mm]", "x (worst/worst)",
+             "min x per model", "damped [mm]"] + ["box worst [mm]", "box p95 [mm]"] * box
+            + ["richer [mm]"] * rich + ["torque [N m]"])
     j = lambda v: " / ".join(fmt(x, 3) for x in v)
     rows = [[k, j(v["dwell_residual_mm"]), j(v["ratio_best_paper"]), fmt(v["perturbed_worst_mm"], 3),
              fmt(v["perturbed_ratio_of_worst"], 3), fmt(v["perturbed_ratio_worst"], 3), j(v["damped_mm"])]
-            + ([j(v["box_worst_mm"]), j(v["box_p95_mm"])] if box else []) + [j(v["max_torque_nm"])]
-            for k, v in rec["laws"].items()]
+            + ([j(v["box_worst_mm"]), j(v["box_p95_mm"])] if box else []) + ([j(v["richer_mm"])] if rich else [])
+            + [j(v["max_torque_nm"])] for k, v in rec["laws"].items()]
     p = rec["design"]["path"]
     if p["free"]:
         shape = lambda c: f", n = {c['n']:.2f}" if p["blend"] == "lame" else ""
@@ -153,7 +157,9 @@ def text(rec: dict) -> str:
             f"{rec['blend']}/{rec['best_paper']}; trained on the {rec['train']} models; {where}; torque bound "
             f"(poly7-Lame) {j(rec['torque_bound_nm'])} N m. Baselines run along the best paper path; "
             "columns with / are per payload"
-            + (f"; box: {nbox} random models of the uncertainty box per payload" if box else "") + ".\n\n"
+            + (f"; box: {nbox} random models of the uncertainty box per payload" if box else "")
+            + ("; richer: the richer validation model (every link in bending and tension)" if rich else "")
+            + ".\n\n"
             + table(head, rows)
             + f"\n\noptimizer: {rec['steps_run']} steps, stopped: {rec['stopped']}, {rec['optimize_s']:.0f} s "
               f"(the first step, {rec['step_times_s'][0] if rec['step_times_s'] else 0:.0f} s, includes compiling "

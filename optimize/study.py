@@ -42,6 +42,7 @@ from jaxflex.blends import BLENDS, DESIGN_BLENDS
 from jaxflex.designs import Design, design, design_path
 from jaxflex.engine import LawEvaluator
 from jaxflex.linearized import path_tables
+from jaxflex.model import richer
 from jaxflex.model_sets import ModelId, ModelSet, model_set, models_of, place_first_mode_hz
 from jaxflex.path import Cycle, Path, make_path
 from jaxflex.problem import Problem
@@ -288,7 +289,9 @@ class StudyConfig:
     box: the uncertainty box (``jaxflex.uncertainty.Box``; default E +-5 %, payload +-10 %,
     damping ratio 0-1 %, link lengths +-0.5 mm, rotor inertia +-10 %); box_samples: random models
     of the box (seed ``box_seed``) on which every trajectory is evaluated after training (the
-    "box" evaluation set; 0: none).
+    "box" evaluation set; 0: none); richer_modes: modes of each kind added to every link of the
+    richer validation model (``jaxflex.model.richer``; the "richer" evaluation set: the nominal
+    payloads; 0: none). Neither set ever trains the design.
 
     Why these defaults (6 kg, tf 0.43 s, 100 steps; nominal / worst of the 9 perturbed models /
     damped, dwell residual): the Lamé design space with the relative objective gave 0.32 / 33.8 /
@@ -316,6 +319,7 @@ class StudyConfig:
     box_points: int = 3
     box_samples: int = 200
     box_seed: int = 0
+    richer_modes: int = 3
 
     def checked(self) -> "StudyConfig":
         """Validate the fields that the study's own argument check does not (SPEC 8: before
@@ -329,21 +333,23 @@ class StudyConfig:
             raise ValueError(f"box_points must be odd (the grid must hold the nominal model), got {points}")
         checks.count("box_samples", self.box_samples, 0)
         checks.count("box_seed", self.box_seed, 0)
+        checks.count("richer_modes", self.richer_modes, 0)
         checks.positive("robust_power", self.robust_power)
         if self.law_order not in (2, 3, 4):
             raise ValueError(f"law_order must be 2, 3 or 4, got {self.law_order!r}")
         return dataclasses.replace(self, box=box)
 
 
-def _evaluators(sets: dict, paths: dict, tf: float, dwell: float, grid: Grid) -> dict:
+def _evaluators(sets: dict, paths: dict, tf: float, dwell: float, grid: Grid, grids: dict | None = None) -> dict:
     """set name -> path name ("paper", "optimized") -> ``LawEvaluator`` (the optimized path's
     evaluator is the paper one when the path was not optimized). Every evaluator runs the engine's
-    one rollout program, the one the paper sweep compiled."""
+    one rollout program, the one the paper sweep compiled (``grids``: another grid for some sets)."""
     out = {}
     for k, s in sets.items():
-        out[k] = {"paper": LawEvaluator(s, paths["paper"], tf, dwell, grid)}
+        g = (grids or {}).get(k, grid)
+        out[k] = {"paper": LawEvaluator(s, paths["paper"], tf, dwell, g)}
         out[k]["optimized"] = (out[k]["paper"] if paths["optimized"] is paths["paper"]
-                               else LawEvaluator(s, paths["optimized"], tf, dwell, grid))
+                               else LawEvaluator(s, paths["optimized"], tf, dwell, g))
     return out
 
 
@@ -414,7 +420,7 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
         paths["optimized"] = paths["paper"]
 
     # the evaluation sets (built after the optimizer: the damped set needs each model's first mode)
-    names = ("nominal", "perturbed", "damped") + (("box",) if c.box_samples else ())
+    names = ("nominal", "perturbed", "damped") + (("box",) if c.box_samples else ()) + (("richer",) if c.richer_modes else ())
     setup = Progress(f"evaluation sets ({', '.join(names)})", enabled=progress)
     with setup.waiting("models and the path tables of the best paper and the optimized paths"):
         sets = {
@@ -424,7 +430,14 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
         }
         if c.box_samples:
             sets["box"] = models_of(robot, c.box.random(payloads, c.box_samples, c.box_seed), cycle)
-        evaluators = _evaluators(sets, paths, tf, dwell, grid)
+        grids = {}
+        if c.richer_modes:
+            rich = richer(robot, c.richer_modes)
+            sets["richer"] = models_of(rich, [ModelId(m) for m in payloads], cycle)
+            # the richer model's faster modes may need more squarings of the same steps
+            grids["richer"] = grid._replace(squarings=max(grid.squarings,
+                                                          default_grid(rich, [tf], dwell).squarings))
+        evaluators = _evaluators(sets, paths, tf, dwell, grid, grids)
     freqs = tuple(place_first_mode_hz(robot.replace(payload=m), cycle) for m in payloads)
     # baselines on the best paper path: the best law, its shaped versions (first payload's mode), Ruckig
     candidates = {f"{blend}/{law} (best paper)": Candidate("paper", make_profile(law))}

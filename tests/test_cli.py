@@ -24,7 +24,8 @@ from jax import monitoring
 from jaxflex.experiments.cli import main
 from jaxflex.metrics import METRICS
 
-OPT = ["--payload", "6", "--tf", "0.43", "--steps", "2", "--train", "nominal", "--box-samples", "4"]
+OPT = ["--payload", "6", "--tf", "0.43", "--steps", "2", "--train", "nominal"]
+BOX = ["--box-samples", "4", "--richer-modes", "1"]        # a few random models, the cheapest richer model
 
 
 def _run(args, capsys, status=0):
@@ -85,7 +86,7 @@ def test_optimize_command_writes_its_outputs_and_resumes(tmp_path, capsys):
     from jaxflex.robot import cycle_preset, igm, robot_preset
 
     out_dir, j1, j2 = tmp_path / "opt", tmp_path / "o1.json", tmp_path / "o2.json"
-    _run(["optimize", *OPT, "--out", out_dir, "--json", j1], capsys)
+    _run(["optimize", *OPT, *BOX, "--out", out_dir, "--json", j1], capsys)
     rec = json.loads(j1.read_text())
     for f in ("optimize.json", "trajectory.csv", "checkpoint.npz", "optimized_law.png", "error_series.png",
               "box_residuals.png"):
@@ -101,6 +102,7 @@ def test_optimize_command_writes_its_outputs_and_resumes(tmp_path, capsys):
     for v in laws.values():
         assert len(v["perturbed_mm"]) == 9 and len(v["damped_mm"]) == 1 and len(v["box_mm"]) == 4
         assert v["box_worst_mm"][0] == max(v["box_mm"]) >= v["box_p95_mm"][0] >= v["box_median_mm"][0] > 0
+        assert len(v["richer_mm"]) == 1 and v["richer_mm"][0] > 0
         assert all(x > 0 and math.isfinite(x) for x in v["dwell_residual_mm"] + v["perturbed_mm"])
     assert all(math.isfinite(x) for x in _finite_numbers(rec))
     head, rows = _read_csv(out_dir / "trajectory.csv")
@@ -113,7 +115,7 @@ def test_optimize_command_writes_its_outputs_and_resumes(tmp_path, capsys):
     for i in (0, 1234, 4300):
         np.testing.assert_allclose(rows[i, 3:], np.asarray(igm(robot, rows[i, 1:3])), atol=1e-9)
     # the rerun with the same directory resumes at step 2 and ends with the same design
-    _, err = _run(["optimize", *OPT, "--out", out_dir, "--json", j2], capsys)
+    _, err = _run(["optimize", *OPT, *BOX, "--out", out_dir, "--json", j2], capsys)
     assert "resumed at step 2" in err
     rec2 = json.loads(j2.read_text())
     assert rec2["history"] == rec["history"] and rec2["design"] == rec["design"]
@@ -123,10 +125,11 @@ def test_optimize_command_writes_its_outputs_and_resumes(tmp_path, capsys):
 @pytest.mark.xdist_group("law")
 def test_optimize_law_only_command(tmp_path, capsys):
     path = tmp_path / "law.json"
-    _run(["optimize", *OPT, "--law-only", "--json", path], capsys)
+    _run(["optimize", *OPT, "--law-only", "--box-samples", "0", "--richer-modes", "0", "--json", path], capsys)
     rec = json.loads(path.read_text())
     assert rec["design"]["path"]["free"] is False and rec["steps_run"] == 2
     assert len(rec["design"]["coef"]) == 6
+    assert "box_mm" not in rec["laws"]["optimized"] and "richer_mm" not in rec["laws"]["optimized"]
     assert all(math.isfinite(x) for x in _finite_numbers(rec))
 
 
