@@ -207,9 +207,9 @@ def _optimization_section(res: dict, out: Path) -> str:
              "corners (G2) the same robust objective left 30-36 um at the worst perturbed model, the "
              "smoothstep family about 1.2 um (`StudyConfig` docstring).", ""]
     if res.get("quick"):
-        lines += ["(`--quick`: two optimizer steps on the nominal model, 8 random models of the box and the richer model with one extra mode per kind, the "
-                  "6 kg case only (neither the 0.1 kg case nor the design for both payloads), no verification: "
-                  "a smoke run, not results.)", ""]
+        lines += ["(`--quick`: two optimizer steps on the nominal model, 8 random models of the box and the "
+                  "richer model with one extra mode per kind, the 6 kg case only (neither the 0.1 kg case nor the "
+                  "design for both payloads), no verification: a smoke run, not results.)", ""]
     for case in res["cases"]:
         d = case["dir"]
         lines += ["```", case["text"], "```", "",

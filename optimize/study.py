@@ -420,7 +420,8 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
         paths["optimized"] = paths["paper"]
 
     # the evaluation sets (built after the optimizer: the damped set needs each model's first mode)
-    names = ("nominal", "perturbed", "damped") + (("box",) if c.box_samples else ()) + (("richer",) if c.richer_modes else ())
+    names = (("nominal", "perturbed", "damped") + (("box",) if c.box_samples else ())
+             + (("richer",) if c.richer_modes else ()))
     setup = Progress(f"evaluation sets ({', '.join(names)})", enabled=progress)
     with setup.waiting("models and the path tables of the best paper and the optimized paths"):
         sets = {
