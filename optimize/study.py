@@ -63,7 +63,7 @@ PERTURB_PAYLOAD = (0.9, 1.0, 1.1)
 SPANNING = ((1.0, 1.0), (0.95, 0.9), (0.95, 1.1), (1.05, 0.9), (1.05, 1.1))   # (E factor, payload factor)
 DAMPING_RATIO = 0.01
 TRAINING_SETS = ("box", "nominal", "spanning", "perturbed")
-BLEND_FAMILY = "lame"               # the optimized design's blend family (d, e, n per corner)
+BLEND_FAMILY = "smoothstep"         # the optimized design's default blend family (d, e per corner; G4 joins)
 START_E = {"smoothstep": 0.08}      # start: e [m] per family (default 25 mm, the paper's); the smoothstep
                                     # blend needs a long horizontal part to spread its turn (issue 21)
 START_D_FRACTION = 0.98             # start: d = 0.98 h (d = h is the open end of the decoded range)
@@ -314,7 +314,7 @@ class StudyConfig:
     absolute: bool = True
     robust_power: float = ROBUST_POWER
     law_order: int = 3
-    blend: str = "smoothstep"
+    blend: str = BLEND_FAMILY
     box: Box = Box()
     box_points: int = 3
     box_samples: int = 200

@@ -156,8 +156,10 @@ def test_minimize_does_not_stop_early_on_negative_objectives():
 def test_the_optimizers_own_gradient_matches_central_differences():
     """The gradient the optimizer steps with (``loop.value_and_grad`` on the design objective exactly
     as ``train_design`` builds it: reverse mode, second-order model, tables rebuilt from the workspace,
-    default grid, the nominal 6 kg model, torque penalty active) w.r.t. every design parameter - the
-    six blend parameters (d, e, n of both corners, asymmetric) and the six law coefficients - against
+    default grid, the nominal 6 kg model, torque penalty active, the default smoothstep blends) w.r.t.
+    every design parameter - the six blend parameters (d, e of both corners, asymmetric, through the
+    smoothstep's warp solve; n, which that family ignores, has a zero gradient) and the six law
+    coefficients - against
     central differences of the same objective. FD step 1e-5 on O(1) parameters (the workspace
     tables are local bicubics, C0 across their 5 mm cells: a 1e-4 step can straddle a cell boundary
     of some path node and errs by up to 5e-5, while at 1e-5 the rounding noise of the rollout,
