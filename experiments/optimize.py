@@ -112,7 +112,8 @@ def _box_summary(study, metrics: dict) -> dict:
 
 def milestones(study, factors=(5.0, 10.0)) -> dict:
     """When the optimizer first held a design with at most 1/factor of the best paper combination's
-    dwell residual on every nominal training model (the history's monitor): {factor: {"step",
+    nominal dwell residual on every nominal training model (the history's monitor), and on every
+    training model ("<factor>x worst training model"): {factor: {"step",
     "wall_s" (since the loop started, compilation of the first step included), "first_step_s",
     "study_s" (since the study started: baselines, training tables and workspaces included)}}, or
     None for a factor never reached."""
@@ -125,6 +126,14 @@ def milestones(study, factors=(5.0, 10.0)) -> dict:
         hit = next((k for k, row in enumerate(hist)
                     if len(row) > 2 and all(row[2 + i] * factor <= r for i, r in zip(idx, ref))), None)
         out[f"{factor:g}x"] = None if hit is None or hit >= len(times) else {
+            "step": int(hist[hit][0]), "wall_s": float(times[hit]), "first_step_s": float(times[0]),
+            "study_s": float(study.setup_s + times[hit])}
+        # robust: every training model (the box grid) at most 1/factor of its payload's best paper residual
+        payload_of = [i.payload for i in study.train_models]
+        limit = {m: r / factor for m, r in zip(study.payloads, ref)}
+        hit = next((k for k, row in enumerate(hist)
+                    if len(row) > 2 and all(v <= limit[m] for v, m in zip(row[2:], payload_of))), None)
+        out[f"{factor:g}x worst training model"] = None if hit is None or hit >= len(times) else {
             "step": int(hist[hit][0]), "wall_s": float(times[hit]), "first_step_s": float(times[0]),
             "study_s": float(study.setup_s + times[hit])}
     return out
