@@ -166,8 +166,14 @@ def test_reproduce_quick_command(tmp_path, capsys):
     for heading in ("## 1.", "## 2.", "## 3.", "optimiz"):
         assert heading in report, heading
     for f in ("kinematics_default.json", "modes_6kg.json", "vibration.json", "provenance.json",
-              "optimize_6kg/study.json", "cycle_time/study.json", "figures/modes_along_path.png"):
+              "optimize_6kg/study.json", "cycle_time/study.json", "figures/modes_along_path.png",
+              "richer_model.json", "optimize_6kg/box_residuals.png"):
         assert (out_dir / f).is_file(), f
+    assert "The paper's combinations on the richer model" in report and "box worst [mm]" in report
+    rich = json.loads((out_dir / "richer_model.json").read_text())
+    for model in ("paper model", "richer model"):
+        cases = rich["dwell_residual_mm"][model]
+        assert len(cases) == 2 and all(len(c) == 12 and all(v > 0 for v in c.values()) for c in cases.values())
     assert not (out_dir / "optimize_0.1kg").exists()          # quick: the 6 kg case only
     pngs = list((out_dir / "figures").glob("*.png"))
     assert len(pngs) >= 5 and all(p.stat().st_size > 1000 for p in pngs)

@@ -19,8 +19,12 @@ res = run_sweep(robot, cycle, PAPER_CASES)
 out = {"sweep": {k: np.asarray(v).ravel().tolist() for k, v in res.metrics.items()}}
 if hasattr(S, "StudyConfig"):
     from jaxflex.problem import Problem, Timing
+    import dataclasses
+    fields = {f.name for f in dataclasses.fields(S.StudyConfig)}
+    old = dict(blend="lame", absolute=False, robust_power=1.0, box_samples=0, richer_modes=0)   # the old defaults
     st = S.optimize_design(Problem(robot, cycle, (6.0,), Timing(0.43)),
-                           S.StudyConfig(steps=3, train="spanning", ruckig=False, progress=False))
+                           S.StudyConfig(steps=3, train="spanning", ruckig=False, progress=False,
+                                         **{k: v for k, v in old.items() if k in fields}))
 else:
     st = S.optimize_design(robot, cycle, (6.0,), 0.43, steps=3, train="spanning", ruckig=False, progress=False)
 out["history"] = [list(map(float, h)) for h in st.result.history]
