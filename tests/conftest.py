@@ -15,10 +15,13 @@ if "XLA_FLAGS" not in os.environ:
     os.environ["XLA_FLAGS"] = "--xla_backend_optimization_level=0"
 
 import jax  # noqa: E402
+import pytest  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 jax.config.update("jax_numpy_rank_promotion", "raise")
+
+from jaxflex import compiled  # noqa: E402  (after the configuration above)
 
 _OWN_CACHE = None
 
@@ -39,3 +42,19 @@ def pytest_configure(config):
 def pytest_unconfigure(config):
     if _OWN_CACHE:
         shutil.rmtree(_OWN_CACHE, ignore_errors=True)
+
+
+_MAPPING_SHARE = 0.5     # release compiled programs when a worker holds half the kernel's mapping limit
+
+
+@pytest.fixture(autouse=True)
+def _bounded_memory_mappings():
+    """XLA:CPU maps every compiled kernel into memory regions of its own, and one xdist worker runs
+    hundreds of tests that each compile programs: without care it reaches the kernel's per-process
+    limit on mappings (vm.max_map_count) and LLVM crashes while compiling (jaxflex.compiled). Before
+    each test, a worker above half the limit drops its compiled programs; the next test that needs
+    one loads it from the session's persistent compilation cache or compiles it again."""
+    count, limit = compiled.mapping_count(), compiled.mapping_limit()
+    if count is not None and limit is not None and count > _MAPPING_SHARE * limit:
+        compiled.release_compiled()
+    yield
