@@ -302,7 +302,9 @@ class StudyConfig:
     0.51 um, at most 1.13 um over 200 random models of the box (95th percentile 0.99 um), 1.19 um
     over its 32 corners and 1.15 um on the richer model, with a peak torque of at most 0.70 of
     poly7-Lamé's on every model (best paper combination: 16.6 / 224 / 56 um, 217 um over the
-    random models, 29 um on the richer model)."""
+    random models, 29 um on the richer model). The full nonlinear model (RK4, 10 us) gives this
+    design 1.25 um on both the paper's and the richer model: at the 1 um level the fast model reads
+    about 0.1 um low (at tens of um the two agree to 0.3 %)."""
 
     steps: int = 100
     learning_rate: float = 0.05
