@@ -188,27 +188,31 @@ def _clothoid_residual(theta1, d, e):
     return d * (theta1 * s1 + theta2 * c2) - e * (theta1 * c1 + theta2 * s2)
 
 
-def _clothoid_coef(d, e):
-    """Solve the G2 clothoid pair: (theta1, theta2, kappa_max, L1, L2, 0).
-
-    Bisection (no gradient) brackets the root; two Newton steps on top make the result exactly
-    differentiable w.r.t. d and e (implicit function theorem at the root).
-    """
+def _bracketed_root(residual, lo, hi, d, e):
+    """Root in [lo, hi] of a residual(x, d, e) that decreases in x: 60 bisection steps without
+    gradient bracket it, two Newton steps on top make the result exactly differentiable w.r.t. d
+    and e (implicit function theorem at the root)."""
     dd, ee = jax.lax.stop_gradient(d), jax.lax.stop_gradient(e)
 
     def bisect(_, lohi):
-        lo, hi = lohi
-        mid = 0.5 * (lo + hi)
-        go_right = _clothoid_residual(mid, dd, ee) > 0.0   # residual decreases with theta1
-        return jnp.where(go_right, mid, lo), jnp.where(go_right, hi, mid)
+        a, b = lohi
+        mid = 0.5 * (a + b)
+        go_right = residual(mid, dd, ee) > 0.0
+        return jnp.where(go_right, mid, a), jnp.where(go_right, b, mid)
 
     zero = jnp.zeros_like(dd)
-    lo, hi = jax.lax.fori_loop(0, 60, bisect, (zero, zero + 0.5 * np.pi))
-    theta1 = jax.lax.stop_gradient(0.5 * (lo + hi))
+    a, b = jax.lax.fori_loop(0, 60, bisect, (zero + lo, zero + hi))
+    x = jax.lax.stop_gradient(0.5 * (a + b))
     for _ in range(2):
-        r = _clothoid_residual(theta1, d, e)
-        dr = jax.grad(_clothoid_residual)(theta1, d, e)
-        theta1 = theta1 - r / dr
+        x = x - residual(x, d, e) / jax.grad(residual)(x, d, e)
+    return x
+
+
+def _clothoid_coef(d, e):
+    """Solve the G2 clothoid pair: (theta1, theta2, kappa_max, L1, L2, 0) (``_bracketed_root``; the
+    residual decreases with theta1)."""
+    zero = jnp.zeros_like(d)
+    theta1 = _bracketed_root(_clothoid_residual, 0.0, 0.5 * np.pi, d, e)
     theta2 = 0.5 * np.pi - theta1
     c1, _ = _fresnel_cs(theta1)
     _, s2 = _fresnel_cs(theta2)
@@ -275,34 +279,23 @@ def _heading(beta, u):
     return 0.5 * np.pi * _smoothstep(_warp(beta, u))
 
 
-def _smooth_extent(beta, u):
-    """(x, y) extent of a unit-length smoothstep blend from arc-length fraction 0 to u (shape (..., 2))."""
-    f = lambda v: jnp.stack([jnp.sin(_heading(beta, v)), jnp.cos(_heading(beta, v))], axis=-1)
-    return integrate(f, 0.0, u, _GL_SMOOTH)
+def _smooth_extent(beta, u, v=1.0):
+    """(x, y) extent of a unit-length smoothstep blend between arc-length fractions u and v (shape (..., 2))."""
+    f = lambda w: jnp.stack([jnp.sin(_heading(beta, w)), jnp.cos(_heading(beta, w))], axis=-1)
+    return integrate(f, u, v, _GL_SMOOTH)
 
 
 def _smooth_residual(beta, d, e):
-    x, y = _smooth_extent(beta, 1.0)
+    x, y = _smooth_extent(beta, 0.0)
     return d * x - e * y                  # zero when the unit blend's aspect x / y equals e / d
 
 
 def _smooth_coef(d, e):
-    """Solve the smoothstep blend: (beta, L, 0, 0, 0, 0). Bisection without gradient brackets beta
-    (the aspect decreases with beta); two Newton steps on top give exact derivatives w.r.t. d, e."""
-    dd, ee = jax.lax.stop_gradient(d), jax.lax.stop_gradient(e)
-
-    def bisect(_, lohi):
-        lo, hi = lohi
-        mid = 0.5 * (lo + hi)
-        go_right = _smooth_residual(mid, dd, ee) > 0.0
-        return jnp.where(go_right, mid, lo), jnp.where(go_right, hi, mid)
-
-    zero = jnp.zeros_like(dd)
-    lo, hi = jax.lax.fori_loop(0, 60, bisect, (zero - _SMOOTH_BETA, zero + _SMOOTH_BETA))
-    beta = jax.lax.stop_gradient(0.5 * (lo + hi))
-    for _ in range(2):
-        beta = beta - _smooth_residual(beta, d, e) / jax.grad(_smooth_residual)(beta, d, e)
-    x, y = _smooth_extent(beta, 1.0)
+    """Solve the smoothstep blend: (beta, L, 0, 0, 0, 0) (``_bracketed_root``; the aspect
+    decreases with beta)."""
+    zero = jnp.zeros_like(d)
+    beta = _bracketed_root(_smooth_residual, -_SMOOTH_BETA, _SMOOTH_BETA, d, e)
+    x, y = _smooth_extent(beta, 0.0)
     length = 0.5 * (e / x + d / y)        # e / x = d / y at the root
     return jnp.stack([beta, length, zero, zero, zero, zero])
 
@@ -312,8 +305,8 @@ def _smooth_frame(coef, d, e, sigma):
     u = sigma / length
     first = u <= 0.5
     # positions: forward from the start on the first half, backward from (e, d) on the second
-    fwd = length * _smooth_extent(beta, jnp.minimum(u, 0.5))
-    back = jnp.stack([e, d]) - length * (_smooth_extent(beta, 1.0) - _smooth_extent(beta, jnp.maximum(u, 0.5)))
+    fwd = length * _smooth_extent(beta, 0.0, jnp.minimum(u, 0.5))
+    back = jnp.stack([e, d]) - length * _smooth_extent(beta, jnp.maximum(u, 0.5))
     pos = jnp.where(first, fwd, back)
     psi_u = lambda v: _heading(beta, v)
     dpsi_u = _d_dp(psi_u)
@@ -370,7 +363,8 @@ def make_blend(kind: str, d, e, n=3.0) -> Blend:
     """Build a blend and its arc-length table.
 
     Args:
-        kind: ``"lame"``, ``"clothoid"``, ``"polar"`` (the paper's), ``"polar_g3"`` or ``"polar_g4"``.
+        kind: ``"lame"``, ``"clothoid"``, ``"polar"`` (the paper's), ``"smoothstep"``, ``"polar_g3"``
+            or ``"polar_g4"``.
         d: length consumed on the vertical leg [m] (> 0).
         e: length consumed on the horizontal leg [m] (> 0).
         n: Lamé order (>= 2), ignored by the other families.

@@ -49,9 +49,8 @@ def default_grid(robot: Robot, tfs, dwell: float, dt: float | None = None) -> Gr
     c = math.sqrt(float(robot.young) / float(robot.rho))
     axial = (2 * robot.n_axial - 1) * math.pi / 2 * c / float(robot.l2)
     from jaxflex.beams import bending_roots
-    bend = bending_roots(robot.n_bending)[-1] ** 2 / float(robot.l1) ** 2 * math.sqrt(
-        float(robot.young) * float(robot.second_moment) / (float(robot.rho) * float(robot.area)))
     ei_rho_a = math.sqrt(float(robot.young) * float(robot.second_moment) / (float(robot.rho) * float(robot.area)))
+    bend = bending_roots(robot.n_bending)[-1] ** 2 / float(robot.l1) ** 2 * ei_rho_a
     extra = [0.0]                                       # the richer model's modes (jaxflex.model.richer)
     if robot.n_axial_proximal:
         extra.append((2 * robot.n_axial_proximal - 1) * math.pi / 2 * c / float(robot.l1))
