@@ -149,12 +149,13 @@ def _optimization(out: Path, quick: bool, key: dict) -> dict:
     the cycle-time study. Each study resumes: a finished one from its JSON, an interrupted
     optimization from its checkpoint. All share one grid (the 0.43 s case's; the 0.3 s case gets a
     finer step), so the single-payload studies and the cycle-time study compile their gradient once."""
+    from jaxflex.optimize.study import StudyConfig
     from jaxflex.robot import robot_preset
     from jaxflex.sweep import default_grid
 
     from . import optimize as opt
 
-    steps = 2 if quick else 100
+    steps = 2 if quick else StudyConfig.steps
     # Full runs give each study a process of its own (memory mappings, see jaxflex.compiled). Quick
     # runs (a smoke test of every step: 2 optimizer steps, nominal models) stay in this process and
     # share its compiled programs: every study on the same grid and model count compiles once.

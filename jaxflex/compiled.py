@@ -9,14 +9,23 @@ independent stages: the mappings of the programs no longer needed are returned, 
 needed again is reloaded from the persistent compilation cache (or recompiled). Releasing does not
 return everything (a few mappings per program stay), so the heaviest stages of a long job run in a
 fresh process of their own (``run_isolated``).
+
+``compile_ahead`` starts compiling a jitted function for arguments of given shapes in a background
+thread while the caller goes on (XLA releases the interpreter lock while it compiles), and
+``call`` runs that program once it is ready, or the function itself when nothing was compiled
+ahead for those shapes. The optimization study compiles its gradient (about a minute cold on 2
+cores) while it builds the paper sweep. The program is the one the jitted function would compile
+for the same abstract arguments, so the results are identical.
 """
 from __future__ import annotations
 
 import gc
 import multiprocessing
-from concurrent.futures import ProcessPoolExecutor
+import threading
+from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 
 import jax
+import numpy as np
 
 _CONFIG = ("jax_enable_x64", "jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs")
 
@@ -43,8 +52,52 @@ def release_compiled() -> None:
     """Drop every compiled program JAX holds in this process (``jax.clear_caches``) and collect
     them, returning their memory mappings. Later calls recompile, or load from the persistent
     compilation cache when it is enabled (the CLI enables it)."""
+    with _AHEAD_LOCK:
+        _AHEAD.clear()
     jax.clear_caches()
     gc.collect()
+
+
+_AHEAD: dict = {}                   # signature -> Future of a compiled program (compile_ahead)
+_AHEAD_LOCK = threading.Lock()
+_AHEAD_POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxflex-compile")
+
+
+def _aval(x) -> tuple:
+    if isinstance(x, jax.ShapeDtypeStruct):
+        return tuple(x.shape), np.dtype(x.dtype).str, bool(x.weak_type)
+    a = jax.typeof(x)
+    return tuple(a.shape), np.dtype(a.dtype).str, bool(getattr(a, "weak_type", False))
+
+
+def _signature(fn, args: tuple, static: dict) -> tuple:
+    leaves, tree = jax.tree_util.tree_flatten(args)
+    return fn, tuple(sorted(static.items())), tree, tuple(_aval(x) for x in leaves)
+
+
+def compile_ahead(fn, args: tuple, static: dict | None = None) -> Future:
+    """Start compiling the jitted ``fn`` for ``args`` (a tuple of pytrees of arrays or
+    ``jax.ShapeDtypeStruct``: only shapes and dtypes matter) and the static keyword arguments
+    ``static`` in a background thread; returns its Future. ``call`` with arguments of the same
+    shapes then uses the program. Compiling the same signature twice starts one compilation."""
+    static = dict(static or {})
+    key = _signature(fn, args, static)
+    with _AHEAD_LOCK:
+        if key not in _AHEAD:
+            _AHEAD[key] = _AHEAD_POOL.submit(lambda: fn.lower(*args, **static).compile())
+        return _AHEAD[key]
+
+
+def call(fn, args: tuple, static: dict | None = None):
+    """``fn(*args, **static)``, through the program ``compile_ahead`` compiled for these shapes if
+    there is one (waiting for it to finish), else through ``fn`` itself."""
+    static = dict(static or {})
+    if _AHEAD:
+        with _AHEAD_LOCK:
+            fut = _AHEAD.get(_signature(fn, args, static))
+        if fut is not None:
+            return fut.result()(*args)
+    return fn(*args, **static)
 
 
 def _call_configured(config: dict, fn, args, kwargs):

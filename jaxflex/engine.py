@@ -4,7 +4,8 @@ A rollout (``simulate.rollout``) of one trajectory on one model is compiled once
 order (first or second) and mode counts, and that single program serves every caller: the paper
 sweep, the optimization studies' paper combinations, baselines and evaluations, the cycle-time
 study, the benchmarks. Batches are run one trajectory at a time (on a 2-core CPU a vmapped batch
-is no faster: 24 rollouts take ~1.0 s either way), so no batch size ever costs a new compilation;
+is no faster: 24 rollouts take ~1.0 s either way), so no batch size ever costs a new compilation,
+from a few threads at once (``jaxflex.parallel``: ~0.7x the time on 2 cores);
 the metrics come from a small program of their own (``metrics.batch_metrics``).
 
 ``run`` validates nothing: callers check their inputs before building tables (SPEC 8).
@@ -22,6 +23,7 @@ from jaxflex import trees
 from jaxflex.linearized import Tables, path_tables
 from jaxflex.metrics import batch_metrics
 from jaxflex.model_sets import ModelSet
+from jaxflex.parallel import host_map
 from jaxflex.path import Path
 from jaxflex.profiles import Profile
 from jaxflex.robot import Robot
@@ -43,8 +45,9 @@ def run(tables: Tables, samples: MotionSamples, tf, dwell, robot: Robot, grid: G
 
 
 def run_many(jobs: Sequence[tuple], grid: Grid, second_order: bool = True) -> Series:
-    """Rollouts of the jobs (tables, samples, tf, dwell, robot), stacked along a leading axis."""
-    return trees.stack([run(*job, grid=grid, second_order=second_order) for job in jobs])
+    """Rollouts of the jobs (tables, samples, tf, dwell, robot), stacked along a leading axis (run
+    side by side on the host's cores, ``jaxflex.parallel``)."""
+    return trees.stack(host_map(lambda job: run(*job, grid=grid, second_order=second_order), jobs))
 
 
 def metrics_of(series: Series) -> dict:

@@ -28,6 +28,7 @@ import numpy as np
 
 from jaxflex import model as mdl
 from jaxflex import trees
+from jaxflex.parallel import host_map
 from jaxflex.path import Path, path_frame
 from jaxflex.robot import Robot, joint_motion
 
@@ -266,15 +267,17 @@ def coeffs_many(robot: Robot, qa, qa1, qa2) -> Coeffs:
     robots = _robot_list(robot)
     stacked = np.ndim(robot.payload) > 0
     poses = [np.asarray(a, dtype=float) for a in (qa, qa1, qa2)]
-    out = []
+    n = poses[0].shape[-2]
+    pad = -n % COEFF_CHUNK
+    jobs = []
     for k, r in enumerate(robots):
         qs = [p[k] if p.ndim == 3 else p for p in poses]
-        n = qs[0].shape[0]
-        pad = -n % COEFF_CHUNK
         qs = [np.concatenate([q, np.repeat(q[:1], pad, axis=0)]) for q in qs]    # valid filler poses
         r = jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype=float), r)
-        parts = [_coeffs_chunk(r, *(q[i:i + COEFF_CHUNK] for q in qs)) for i in range(0, n + pad, COEFF_CHUNK)]
-        out.append(trees.concatenate(parts, length=n))
+        jobs += [(r, *(q[i:i + COEFF_CHUNK] for q in qs)) for i in range(0, n + pad, COEFF_CHUNK)]
+    parts = host_map(lambda job: _coeffs_chunk(*job), jobs)       # the chunks side by side (jaxflex.parallel)
+    per = (n + pad) // COEFF_CHUNK
+    out = [trees.concatenate(parts[k * per:(k + 1) * per], length=n) for k in range(len(robots))]
     return trees.stack(out) if stacked else out[0]
 
 

@@ -25,7 +25,7 @@ import numpy as np
 import optax
 from jax.flatten_util import ravel_pytree
 
-from jaxflex import checks
+from jaxflex import checks, compiled
 from jaxflex.progress import Progress
 
 
@@ -120,10 +120,17 @@ def value_and_grad(params, args, *, f, mode: str = "reverse"):
     at every step. Compiled with f static: calls with the same f (the same object) and new ``args``
     values of the same shapes reuse one compilation (e.g. a sweep over tf or payloads, a benchmark
     or a gradient check of the optimizer's own gradient)."""
-    return _value_and_grad_jit(params, args, f, mode)
+    return compiled.call(_value_and_grad_jit, (params, args), {"f": f, "mode": mode})
 
 
 value_and_grad._cache_size = _value_and_grad_jit._cache_size
+
+
+def compile_gradient_ahead(params, args, *, f, mode: str = "reverse"):
+    """Start compiling ``value_and_grad``'s program for parameters and arguments of these shapes
+    (arrays or ``jax.ShapeDtypeStruct``) in a background thread (``jaxflex.compiled.compile_ahead``);
+    the first ``value_and_grad`` call with the same f, mode and shapes waits for it and uses it."""
+    return compiled.compile_ahead(_value_and_grad_jit, (params, args), {"f": f, "mode": mode})
 
 
 @jax.jit

@@ -5,22 +5,29 @@
 1. the 12 paper combinations, simulated on every training model (``paper_sweep``), give the best
    one on the nominal models (smallest dwell residual; for several payloads the smallest
    worst-case ratio to each payload's best), the torque bound (the poly7-Lamé peak torque, per
-   model) and the objective's scales (the best combination's residuals, per model);
-2. a design (Lamé blend parameters d, e, n of each corner and a shaped monotone motion law,
-   ``jaxflex.designs``) is optimized by gradient (reverse mode through the table build and the
-   whole second-order rollout, optax Adam) on the training models, each normalized by the best paper
-   combination on the same model, weighted mean (``objective.objective``); with
-   ``StudyConfig(absolute=True, robust_power=ROBUST_POWER)`` the smooth worst case (power mean) of
-   their absolute residuals instead, in units of the best paper combination's residual on the
-   payload's nominal model (SPEC 6; not yet the default: see ``StudyConfig``); it starts from the paper's Lamé path
-   (d = e = 25 mm, n = 3) with poly7. With ``free_path=False`` only the law is optimized, on the
-   best paper combination's path;
+   model) and the objective's scales (the best combination's residuals);
+2. a design (the blend parameters of each corner, by default of the G4 ``smoothstep`` family, and
+   a shaped monotone motion law, ``jaxflex.designs``) is optimized by gradient (reverse mode
+   through the workspace tables and the whole second-order rollout, optax Adam) on the training
+   models. By default (``StudyConfig``: absolute, ``robust_power=ROBUST_POWER``) the objective is a
+   smooth worst case (power mean) of their absolute residuals, in units of the best paper
+   combination's residual on the payload's nominal model (SPEC 6); with ``absolute=False`` each
+   model is normalized by the best paper combination on the same model. It starts from
+   ``start_design`` with poly7. With ``free_path=False`` only the law is optimized, on the best
+   paper combination's path;
 3. the optimized design and every baseline (best paper combination, its ZV/ZVD shaping, Ruckig along
    the best paper path) are evaluated on the same models: nominal, perturbed (E x {0.95, 1, 1.05},
-   payload x {0.9, 1, 1.1}), and with 1 % damping at the first mode.
+   payload x {0.9, 1, 1.1}), with 1 % damping at the first mode, on random models of the
+   uncertainty box and on the richer validation model (``evaluation_sets``).
 
-Training sets (SPEC 6: a design counts only if its advantage survives model error): ``nominal``
-(the payloads), ``spanning`` (default: per payload the nominal model and the four corners of the
+Time: the design gradient compiles in a background thread while the paper sweep runs
+(``loop.compile_gradient_ahead``), and the evaluation sets with every baseline on them, which do
+not depend on the design, are computed beside the optimizer (``_Beside``); only the optimized
+design is evaluated after it. The results are those of the sequential order, bit for bit.
+
+Training sets (SPEC 6: a design counts only if its advantage survives model error): ``box``
+(default: a grid over the uncertainty box, ``jaxflex.uncertainty.Box.grid``), ``nominal``
+(the payloads), ``spanning`` (per payload the nominal model and the four corners of the
 perturbation box E x {0.95, 1.05}, payload x {0.9, 1.1}; the evaluation's four edge midpoints stay
 unseen) or ``perturbed`` (all nine models of the evaluation box per payload).
 """
@@ -29,7 +36,9 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import os
+import threading
 import time
+from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple, Sequence
 
 import jax
@@ -55,7 +64,7 @@ from jaxflex.sweep import default_grid
 from jaxflex.workspace import Workspace, build_workspace
 
 from .baselines import ruckig_samples, shaper_profiles
-from .loop import OptimizerConfig, OptResult, minimize
+from .loop import OptimizerConfig, OptResult, compile_gradient_ahead, minimize
 from .objective import TORQUE_WEIGHT, Params, Scales, decode, encode, law_objective, objective
 
 PERTURB_E = (0.95, 1.0, 1.05)
@@ -304,9 +313,14 @@ class StudyConfig:
     poly7-Lamé's on every model (best paper combination: 16.6 / 224 / 56 um, 217 um over the
     random models, 29 um on the richer model). The full nonlinear model (RK4, 10 us) gives this
     design 1.25 um on both the paper's and the richer model: at the 1 um level the fast model reads
-    about 0.1 um low (at tens of um the two agree to 0.3 %)."""
+    about 0.1 um low (at tens of um the two agree to 0.3 %).
 
-    steps: int = 100
+    steps = 50 (default): the 100-step figures above are 1.25 / 1.28 / 0.63 um after 50 steps (200
+    random models: worst 1.25, 95th percentile 1.03; richer model 1.26; peak torque 64 N m), every
+    one below a tenth of the best paper combination (1.66 um), and a cold ``jaxflex optimize
+    --payload 6 --tf 0.43`` takes about 4.5 minutes on 2 cores instead of 7.5."""
+
+    steps: int = 50
     learning_rate: float = 0.05
     n_coef: int = 6
     train: str = "box"
@@ -344,17 +358,66 @@ class StudyConfig:
         return dataclasses.replace(self, box=box)
 
 
-def _evaluators(sets: dict, paths: dict, tf: float, dwell: float, grid: Grid, grids: dict | None = None) -> dict:
-    """set name -> path name ("paper", "optimized") -> ``LawEvaluator`` (the optimized path's
-    evaluator is the paper one when the path was not optimized). Every evaluator runs the engine's
-    one rollout program, the one the paper sweep compiled (``grids``: another grid for some sets)."""
-    out = {}
+def evaluation_sets(robot: Robot, cycle: Cycle, payloads, tf: float, dwell: float, grid: Grid,
+                    config: StudyConfig) -> tuple[dict, dict]:
+    """(sets, grids): the models every trajectory of a study is evaluated on, set name -> ModelSet
+    (nominal, perturbed, damped; box and richer as ``config`` asks), and the grids of the sets that
+    need another one (the richer model's faster modes may need more squarings of the same steps)."""
+    sets = {
+        "nominal": model_set(robot, payloads),
+        "perturbed": model_set(robot, payloads, stiffness=PERTURB_E, payload_scale=PERTURB_PAYLOAD),
+        "damped": model_set(robot, payloads, damping_ratio=DAMPING_RATIO, cycle=cycle),
+    }
+    if config.box_samples:
+        sets["box"] = models_of(robot, config.box.random(payloads, config.box_samples, config.box_seed), cycle)
+    grids = {}
+    if config.richer_modes:
+        rich = richer(robot, config.richer_modes)
+        sets["richer"] = models_of(rich, [ModelId(m) for m in payloads], cycle)
+        grids["richer"] = grid._replace(squarings=max(grid.squarings, default_grid(rich, [tf], dwell).squarings))
+    return sets, grids
+
+
+def _paper_evaluations(cancelled, robot, cycle, payloads, tf, dwell, grid, config, path, candidates):
+    """The evaluation sets, the best paper path's evaluators on them and every candidate on that
+    path (the baselines) evaluated: (sets, grids, evaluators set -> {"paper": LawEvaluator},
+    evaluations set -> candidate -> metrics). Stops early when ``cancelled`` is set."""
+    sets, grids = evaluation_sets(robot, cycle, payloads, tf, dwell, grid, config)
+    evaluators, evaluations = {}, {}
     for k, s in sets.items():
-        g = (grids or {}).get(k, grid)
-        out[k] = {"paper": LawEvaluator(s, paths["paper"], tf, dwell, g)}
-        out[k]["optimized"] = (out[k]["paper"] if paths["optimized"] is paths["paper"]
-                               else LawEvaluator(s, paths["optimized"], tf, dwell, g))
-    return out
+        evaluators[k] = {"paper": LawEvaluator(s, path, tf, dwell, grids.get(k, grid))}
+        evaluations[k] = {}
+        for name, cand in candidates.items():
+            if cancelled.is_set():
+                return None
+            evaluations[k][name] = evaluators[k]["paper"](cand.law)
+    return sets, grids, evaluators, evaluations
+
+
+class _Beside:
+    """``fn(cancelled, *args)`` in a background thread from ``with`` entry; ``result()`` waits for
+    it (re-raising its exception). Leaving the block by an exception cancels it (``fn`` checks the
+    event between its steps) and waits for it to stop."""
+
+    def __init__(self, fn, *args):
+        self._fn, self._args = fn, args
+        self._cancelled = threading.Event()
+        self._pool = None
+        self._future = None
+
+    def __enter__(self):
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxflex-beside")
+        self._future = self._pool.submit(self._fn, self._cancelled, *self._args)
+        return self
+
+    def result(self):
+        return self._future.result()
+
+    def __exit__(self, kind, value, tb):
+        if kind is not None:
+            self._cancelled.set()
+        self._pool.shutdown(wait=True)
+        return False
 
 
 def _workspaces(models: ModelSet, cycle: Cycle, progress: bool) -> Workspace:
@@ -390,6 +453,17 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
     # the paper sweep on the training models: it gives the best combination (nominal models), the
     # torque bounds and the objective's scales (every training model) with one rollout program
     models = training_models(robot, payloads, train, box=c.box, points=c.box_points, cycle=cycle)
+    weights = training_weights(train, len(payloads))
+    workspaces = None
+    if free_path:
+        # the design gradient compiles (about a minute cold) in the background during the paper sweep:
+        # its scales are only shapes until then
+        workspaces = _workspaces(models, cycle, progress)
+        x0 = init if init is not None else start_design(cycle, n_coef, c.blend)
+        if steps > 0:
+            f, args = design_objective(models, cycle, tf, dwell, grid, _abstract_scales(len(models.ids), weights),
+                                       workspaces, power=c.robust_power, order=c.law_order, blend=c.blend)
+            compile_gradient_ahead(encode(cycle, x0), args, f=f)
     sweep = paper_sweep(models, cycle, tf, dwell, grid, progress=progress)
     nominal = nominal_indices(models, payloads)
     paper = {k: v[..., nominal] for k, v in sweep.metrics.items()}                 # (B, P, C)
@@ -402,47 +476,9 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
     bounds = sweep.metrics["max_torque_nm"][i_lame, j_poly7]                 # per training model (K,)
     torque_bound = bounds[nominal]
     ref = {k: v[i, j] for k, v in sweep.metrics.items()}
-    scales = scales_from_metrics(ref, bounds, training_weights(train, len(payloads)), models if c.absolute else None)
+    scales = scales_from_metrics(ref, bounds, weights, models if c.absolute else None)
     train_paper = sweep.evaluators[blend]
     label = f"{'design' if free_path else 'law'} tf={tf:g}"
-    workspaces = _workspaces(models, cycle, progress) if free_path else None
-    setup_s = time.time() - started
-    if free_path:
-        x0 = init if init is not None else start_design(cycle, n_coef, c.blend)
-        result = train_design(models, cycle, tf, dwell, grid, scales, encode(cycle, x0), steps=steps,
-                              learning_rate=learning_rate, checkpoint=checkpoint, progress=progress, label=label,
-                              workspaces=workspaces, power=c.robust_power, order=c.law_order, blend=c.blend)
-        x = jax.tree_util.tree_map(np.asarray, decode(cycle, result.params))
-        paths["optimized"] = design_path(cycle, x, c.blend)
-        coef = np.asarray(x.coef)
-    else:
-        c0 = np.ones(n_coef) if init is None else np.asarray(init.coef)
-        result = train_law(train_paper, paths["paper"], tf, scales, c0, steps=steps, learning_rate=learning_rate,
-                           checkpoint=checkpoint, progress=progress, label=label, power=c.robust_power,
-                           order=c.law_order)
-        x, coef = None, np.asarray(result.params)
-        paths["optimized"] = paths["paper"]
-
-    # the evaluation sets (built after the optimizer: the damped set needs each model's first mode)
-    names = (("nominal", "perturbed", "damped") + (("box",) if c.box_samples else ())
-             + (("richer",) if c.richer_modes else ()))
-    setup = Progress(f"evaluation sets ({', '.join(names)})", enabled=progress)
-    with setup.waiting("models and the path tables of the best paper and the optimized paths"):
-        sets = {
-            "nominal": model_set(robot, payloads),
-            "perturbed": model_set(robot, payloads, stiffness=PERTURB_E, payload_scale=PERTURB_PAYLOAD),
-            "damped": model_set(robot, payloads, damping_ratio=DAMPING_RATIO, cycle=cycle),
-        }
-        if c.box_samples:
-            sets["box"] = models_of(robot, c.box.random(payloads, c.box_samples, c.box_seed), cycle)
-        grids = {}
-        if c.richer_modes:
-            rich = richer(robot, c.richer_modes)
-            sets["richer"] = models_of(rich, [ModelId(m) for m in payloads], cycle)
-            # the richer model's faster modes may need more squarings of the same steps
-            grids["richer"] = grid._replace(squarings=max(grid.squarings,
-                                                          default_grid(rich, [tf], dwell).squarings))
-        evaluators = _evaluators(sets, paths, tf, dwell, grid, grids)
     freqs = tuple(place_first_mode_hz(robot.replace(payload=m), cycle) for m in payloads)
     # baselines on the best paper path: the best law, its shaped versions (first payload's mode), Ruckig
     candidates = {f"{blend}/{law} (best paper)": Candidate("paper", make_profile(law))}
@@ -456,16 +492,41 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
         except ImportError as err:
             if progress:
                 print(f"  (Ruckig baseline skipped: {err})", flush=True)
-    candidates["optimized"] = Candidate("optimized", shaped(jnp.asarray(coef), c.law_order, name="optimized"))
-    bar = Progress(f"baselines and the optimized design on {sum(len(s.labels) for s in sets.values())} models",
-                   total=len(sets) * len(candidates), unit="evaluation", enabled=progress)
-    evaluations = {}
+    # the evaluation sets and the baselines on them do not depend on the design: they are computed
+    # beside the optimizer (a background thread), the optimized design after it
+    beside = _Beside(_paper_evaluations, robot, cycle, payloads, tf, dwell, grid, c, paths["paper"], dict(candidates))
+    setup_s = time.time() - started
+    with beside:
+        if free_path:
+            result = train_design(models, cycle, tf, dwell, grid, scales, encode(cycle, x0), steps=steps,
+                                  learning_rate=learning_rate, checkpoint=checkpoint, progress=progress,
+                                  label=label, workspaces=workspaces, power=c.robust_power, order=c.law_order,
+                                  blend=c.blend)
+            x = jax.tree_util.tree_map(np.asarray, decode(cycle, result.params))
+            paths["optimized"] = design_path(cycle, x, c.blend)
+            coef = np.asarray(x.coef)
+        else:
+            c0 = np.ones(n_coef) if init is None else np.asarray(init.coef)
+            result = train_law(train_paper, paths["paper"], tf, scales, c0, steps=steps,
+                               learning_rate=learning_rate, checkpoint=checkpoint, progress=progress, label=label,
+                               power=c.robust_power, order=c.law_order)
+            x, coef = None, np.asarray(result.params)
+            paths["optimized"] = paths["paper"]
+        candidates["optimized"] = Candidate("optimized", shaped(jnp.asarray(coef), c.law_order, name="optimized"))
+        wait = Progress("evaluation sets and baselines", enabled=progress)
+        with wait.waiting("finishing the baselines computed beside the optimizer", key="baselines beside"):
+            sets, grids, evaluators, evaluations = beside.result()
+    total = sum(len(s.labels) for s in sets.values())
+    bar = Progress(f"the optimized design on {total} models", total=len(sets), unit="set", enabled=progress)
     with bar:
-        for k in sets:
-            evaluations[k] = {}
-            for name, cand in candidates.items():
-                evaluations[k][name] = evaluators[k][cand.path](cand.law)
-                bar.update(note=f"{k}: {name}")
+        for k, s in sets.items():
+            if paths["optimized"] is paths["paper"]:
+                evaluators[k]["optimized"] = evaluators[k]["paper"]
+            else:
+                with bar.waiting(f"{k}: path tables") if not bar.counting else contextlib.nullcontext():
+                    evaluators[k]["optimized"] = LawEvaluator(s, paths["optimized"], tf, dwell, grids.get(k, grid))
+            evaluations[k]["optimized"] = evaluators[k]["optimized"](candidates["optimized"].law)
+            bar.update(note=k)
     return DesignStudy(payloads, tf, blend, law, x, coef, result, train, models.ids, candidates, paths, evaluations,
                        {k: s.ids for k, s in sets.items()}, paper, torque_bound, limits, freqs, grid,
                        time.time() - started, evaluators, setup_s)
@@ -538,6 +599,12 @@ def design_objective(models: ModelSet, cycle: Cycle, tf: float, dwell: float, gr
     return DesignObjective(grid, blend=blend, order=int(order), power=float(power)), args
 
 
+def _abstract_scales(k: int, weights) -> Scales:
+    """The shapes of ``_canonical(scales_from_metrics(...))`` for k models (weights None or (k,))."""
+    v = jax.ShapeDtypeStruct((k,), jnp.float64)
+    return Scales(energy=v, dwell_ms=v, torque_bound=v, weights=None if weights is None else v)
+
+
 def _host_scalar(v):
     return jax.device_put(np.asarray(v, dtype=np.float64))
 
@@ -545,7 +612,7 @@ def _host_scalar(v):
 def _canonical(scales: Scales) -> Scales:
     """Scales as strongly typed float64 arrays: a weakly typed value (e.g. ``jnp.full(1, 1e-3)``)
     would give the same objective a second compiled program."""
-    return Scales(*(None if v is None else _host_scalar(v) for v in scales))
+    return Scales(*(v if v is None or isinstance(v, jax.ShapeDtypeStruct) else _host_scalar(v) for v in scales))
 
 
 def train_law(train: LawEvaluator, path: Path, tf: float, scales: Scales, init, *, steps: int = 100,

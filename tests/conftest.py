@@ -14,6 +14,13 @@ import tempfile
 if "XLA_FLAGS" not in os.environ:
     os.environ["XLA_FLAGS"] = "--xla_backend_optimization_level=0"
 
+# The xdist workers start after this file is read, so they inherit the environment the ``jaxflex``
+# console script runs in: glibc's malloc on transparent huge pages (about half the kernel time of
+# XLA's buffer allocations; ``jaxflex.experiments.cli._hugepages_env``).
+from jaxflex.experiments.cli import _hugepages_env  # noqa: E402  (imports no jax)
+
+os.environ.update(_hugepages_env() or {})
+
 import jax  # noqa: E402
 import pytest  # noqa: E402
 

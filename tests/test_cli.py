@@ -54,6 +54,44 @@ def test_console_script_runs_and_every_command_has_help():
         assert "usage: jaxflex" in proc.stdout
 
 
+def test_console_script_environment_adds_huge_pages_once(monkeypatch):
+    """The console script re-runs itself with glibc's malloc on huge pages (``_hugepages_env``):
+    the tunable is appended to existing ones, never twice, and JAXFLEX_HUGEPAGES=0 turns it off."""
+    from jaxflex.experiments import cli
+
+    monkeypatch.setattr(cli.sys, "platform", "linux")
+    monkeypatch.setattr("platform.libc_ver", lambda *a, **k: ("glibc", "2.36"))
+    monkeypatch.setattr("builtins.open", lambda *a, **k: __import__("io").StringIO("always [madvise] never"))
+    monkeypatch.delenv("JAXFLEX_HUGEPAGES", raising=False)
+    monkeypatch.setenv("GLIBC_TUNABLES", "glibc.malloc.arena_max=2")
+    env = cli._hugepages_env()
+    assert env["GLIBC_TUNABLES"] == "glibc.malloc.arena_max=2:glibc.malloc.hugetlb=1"
+    monkeypatch.setenv("GLIBC_TUNABLES", env["GLIBC_TUNABLES"])
+    assert cli._hugepages_env() is None                        # already set: no second re-execution
+    monkeypatch.delenv("GLIBC_TUNABLES")
+    assert cli._hugepages_env()["GLIBC_TUNABLES"] == "glibc.malloc.hugetlb=1"
+    monkeypatch.setenv("JAXFLEX_HUGEPAGES", "0")
+    assert cli._hugepages_env() is None
+    monkeypatch.delenv("JAXFLEX_HUGEPAGES")
+    monkeypatch.setattr("builtins.open", lambda *a, **k: __import__("io").StringIO("always madvise [never]"))
+    assert cli._hugepages_env() is None                        # huge pages off in the kernel
+
+
+def test_optimize_command_defaults_are_the_study_defaults():
+    """``jaxflex optimize`` without options runs ``StudyConfig()`` (the CLI keeps its own copy of the
+    defaults so that --help imports no jax)."""
+    import dataclasses
+
+    from jaxflex.experiments.cli import build_parser
+    from jaxflex.optimize.study import ROBUST_POWER, StudyConfig
+
+    a, c = build_parser().parse_args(["optimize"]), StudyConfig()
+    assert (a.steps, a.coef, a.lr, a.train, a.blend, a.box_points, a.box_samples, a.richer_modes) == (
+        c.steps, c.n_coef, c.learning_rate, c.train, c.blend, c.box_points, c.box_samples, c.richer_modes)
+    assert (a.box_young, a.box_payload, tuple(a.box_damping), a.box_length, a.box_rotor) == dataclasses.astuple(c.box)
+    assert a.objective == "worst" and c.absolute and c.robust_power == ROBUST_POWER and a.free_path == c.free_path
+
+
 def test_sweep_command(tmp_path, capsys):
     """The 12 combinations, 6 kg, tf 0.43 s, default step: SPEC 7 keys, every SPEC 5 metric per run,
     finite and physically sized, and the table with every metric."""

@@ -69,3 +69,50 @@ def test_run_isolated_compiles_in_a_child_and_keeps_settings_and_errors():
     assert mapping_count() - before < 50, (before, mapping_count(), child_maps)
     with pytest.raises(ValueError, match="beyond the leg"):
         run_isolated(_fails)
+
+
+def test_compile_ahead_gives_the_jitted_result_and_release_forgets_it():
+    """A program compiled ahead from shapes alone (``compile_ahead``) is the one ``call`` runs for
+    arguments of those shapes, with the jitted function's result; other shapes, other static
+    arguments and a released registry go through the jitted function."""
+    from jaxflex import compiled
+
+    f = jax.jit(lambda x, y, scale: scale * jnp.sin(x) @ y, static_argnames="scale")
+    x, y = jnp.linspace(0.0, 1.0, 12).reshape(3, 4), jnp.linspace(-1.0, 2.0, 8).reshape(4, 2)
+    fut = compiled.compile_ahead(f, (jax.ShapeDtypeStruct((3, 4), x.dtype), jax.ShapeDtypeStruct((4, 2), y.dtype)),
+                                 {"scale": 2.0})
+    assert compiled.compile_ahead(f, (x, y), {"scale": 2.0}) is fut          # same signature: one compilation
+    before = f._cache_size()
+    out = compiled.call(f, (x, y), {"scale": 2.0})
+    assert fut.done() and f._cache_size() == before                         # the ahead program ran, not the jit
+    assert jnp.array_equal(out, f(x, y, scale=2.0))
+    before = f._cache_size()
+    other = compiled.call(f, (x, y), {"scale": 3.0})             # not compiled ahead: the jit (round-off apart)
+    assert f._cache_size() == before + 1 and jnp.allclose(other, 1.5 * out, rtol=1e-14, atol=0.0)
+    release_compiled()
+    assert not compiled._AHEAD
+
+
+def test_host_map_keeps_order_results_and_errors(monkeypatch):
+    """``parallel.host_map`` with several threads equals the sequential loop, item by item, and
+    raises the first failing item's error; JAXFLEX_THREADS is validated."""
+    from jaxflex import parallel
+
+    f = jax.jit(lambda a: jnp.cumsum(jnp.sin(a * jnp.arange(200.0))))
+    items = [float(k) for k in range(7)]
+    monkeypatch.setenv("JAXFLEX_THREADS", "3")
+    assert parallel.threads() == 3
+    threaded = parallel.host_map(f, items)
+    monkeypatch.setenv("JAXFLEX_THREADS", "1")
+    assert all(jnp.array_equal(a, f(x)) for a, x in zip(threaded, items))
+    monkeypatch.setenv("JAXFLEX_THREADS", "2")
+
+    def bad(a):
+        if a >= 3:
+            raise ValueError(f"item {a:g}")
+        return f(a)
+    with pytest.raises(ValueError, match="item 3"):
+        parallel.host_map(bad, items)
+    monkeypatch.setenv("JAXFLEX_THREADS", "0")
+    with pytest.raises(ValueError, match="JAXFLEX_THREADS"):
+        parallel.threads()
