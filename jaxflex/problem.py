@@ -2,7 +2,7 @@
 robot, the pick-and-place cycle, the payload cases) and when (``Timing``: motion time, dwell, grid).
 
     problem = Problem(robot_preset("default"), cycle_preset(), payloads=(6.0,), timing=Timing(tf=0.43))
-    study = optimize_design(problem, StudyConfig(steps=100))
+    study = optimize_design(problem, StudyConfig(steps=50))
 
 Both are NamedTuples (immutable, printable, ``_replace`` for variants such as another tf); the
 model order and the optimizer's settings live in the configurations of the functions that use them.
