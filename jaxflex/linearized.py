@@ -32,9 +32,12 @@ from jaxflex.parallel import host_map
 from jaxflex.path import Path, path_frame
 from jaxflex.robot import Robot, joint_motion
 
-# nodes per path segment (line, blend, traverse, blend, line); doubling the straight segments' nodes
-# changes the paper sweep's residuals by < 3e-5 (relative), 32 instead of 48 on the blends by 0.5 %
-SEGMENT_NODES = (6, 48, 48, 48, 6)
+# nodes per path segment (line, blend, traverse, blend, line). The blends need the most: with 48 nodes
+# on each, the optimized smoothstep design (long blends, e ~ 100 mm; 1.3 um of dwell residual) read
+# 7 % low (1.25 um; 1.345 with 96, 1.340 with 192 on the blends and twice the nodes elsewhere), the
+# paper's combinations 0.1 % high (16.616 um against 16.601 and 16.601). Doubling the straight
+# segments' nodes changes the paper sweep's residuals by < 3e-5 (relative).
+SEGMENT_NODES = (6, 96, 48, 96, 6)
 
 
 class SlowCoeffs(NamedTuple):
@@ -241,7 +244,7 @@ def build_tables(robot: Robot, path: Path) -> Tables:
     return Tables(values=coeffs_at(robot, *table_poses(robot, path)), breaks=path.breaks)
 
 
-COEFF_CHUNK = 160        # poses per call of the shared coefficient program: one path table (sum(SEGMENT_NODES))
+COEFF_CHUNK = 252        # poses per call of the shared coefficient program: one path table (sum(SEGMENT_NODES))
                          # is one call, larger sets (sweeps, workspaces) a few (padding costs compute)
 
 
