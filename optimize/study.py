@@ -311,14 +311,15 @@ class StudyConfig:
     0.51 um, at most 1.13 um over 200 random models of the box (95th percentile 0.99 um), 1.19 um
     over its 32 corners and 1.15 um on the richer model, with a peak torque of at most 0.70 of
     poly7-Lamé's on every model (best paper combination: 16.6 / 224 / 56 um, 217 um over the
-    random models, 29 um on the richer model). The full nonlinear model (RK4, 10 us) gives this
-    design 1.25 um on both the paper's and the richer model: at the 1 um level the fast model reads
-    about 0.1 um low (at tens of um the two agree to 0.3 %).
+    random models, 29 um on the richer model). Those figures came from path tables with 48 nodes per
+    blend, which read this design's residual ~8 % low (the full nonlinear model, RK4 at 10 us, gave
+    1.25 um); with 96 (``linearized.SEGMENT_NODES``) the fast model and the full model agree.
 
-    steps = 50 (default): the 100-step figures above are 1.25 / 1.28 / 0.63 um after 50 steps (200
-    random models: worst 1.25, 95th percentile 1.03; richer model 1.26; peak torque 64 N m), every
-    one below a tenth of the best paper combination (1.66 um), and a cold ``jaxflex optimize
-    --payload 6 --tf 0.43`` takes about 4.5 minutes on 2 cores instead of 7.5."""
+    steps = 50 (default), 96 nodes per blend: 1.23 / 1.23 / 0.82 um; 200 random models: worst 1.22,
+    95th percentile 1.09; richer model 1.24; peak torque 63.8 N m; the full model gives 1.225 um on
+    the nominal model (fast: 1.23). Every one is below a tenth of the best paper combination
+    (1.66 um), and a cold ``jaxflex optimize --payload 6 --tf 0.43`` takes 4 min 19 s on 2 cores
+    (7 min 21 s with 100 steps before the evaluation ran beside the optimizer)."""
 
     steps: int = 50
     learning_rate: float = 0.05
