@@ -34,8 +34,9 @@ from jaxflex.robot import Robot, joint_motion
 
 # nodes per path segment (line, blend, traverse, blend, line). The blends need the most: with 48 nodes
 # on each, the optimized smoothstep design (long blends, e ~ 100 mm; 1.3 um of dwell residual) read
-# 7 % low (1.25 um; 1.345 with 96, 1.340 with 192 on the blends and twice the nodes elsewhere), the
-# paper's combinations 0.1 % high (16.616 um against 16.601 and 16.601). Doubling the straight
+# 7 % low (1.25 um; 1.345 with 96, 1.340 with 192 on the blends and twice the nodes elsewhere); the
+# paper's combinations moved by 0.1 % at 6 kg (lame/trap_1_4 16.616 um against 16.601 and 16.601)
+# and by up to 2 % at 0.1 kg (clothoid/poly7 at 0.3 s: 17.9 -> 17.6 um). Doubling the straight
 # segments' nodes changes the paper sweep's residuals by < 3e-5 (relative).
 SEGMENT_NODES = (6, 96, 48, 96, 6)
 
