@@ -245,7 +245,7 @@ def build_tables(robot: Robot, path: Path) -> Tables:
     return Tables(values=coeffs_at(robot, *table_poses(robot, path)), breaks=path.breaks)
 
 
-COEFF_CHUNK = 252        # poses per call of the shared coefficient program: one path table (sum(SEGMENT_NODES))
+COEFF_CHUNK = sum(SEGMENT_NODES)   # poses per call of the shared coefficient program: one path table
                          # is one call, larger sets (sweeps, workspaces) a few (padding costs compute)
 
 
