@@ -58,24 +58,30 @@ def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwe
     Compile times are the first call minus a run."""
     from jaxflex.designs import design
     from jaxflex.optimize.objective import Scales, encode
-    from jaxflex.optimize.study import design_objective, law_objective_args, training_models
+    from jaxflex.optimize.study import (StudyConfig, design_objective, law_objective_args, training_models,
+                                        training_weights)
 
     robot, cycle = robot_preset("default"), cycle_preset()
     grid = default_grid(robot, [tf], dwell)
     models = training_models(robot, [payload], "nominal")
-    # weights as the study passes them (the same pytree: the optimizer's own compiled program)
-    scales = Scales(jnp.full(1, 1e-3), jnp.full(1, 1e-10), jnp.full(1, 90.0), jnp.ones(1))
+    # the study's defaults, weights and pytrees: the optimizer's own compiled program (one process
+    # that ran ``jaxflex optimize --train nominal`` on this grid reuses it)
+    c = StudyConfig()
+    scales = Scales(jnp.full(1, 1e-3), jnp.full(1, 1e-10), jnp.full(1, 90.0),
+                    jnp.asarray(training_weights("nominal", 1)))
     coef = jnp.asarray([1.0, 1.2, 0.9, 1.0, 1.1, 0.95])
     t0 = time.perf_counter()
     ws = jax.block_until_ready(build_workspace(models.robots, cycle))
     ws_s = time.perf_counter() - t0
-    f, args = design_objective(models, cycle, tf, dwell, grid, scales, ws)
+    f, args = design_objective(models, cycle, tf, dwell, grid, scales, ws, power=c.robust_power,
+                               order=c.law_order, blend=c.blend)
     params = encode(cycle, design(0.0245, 0.03, 3.2, coef, e2=0.035, n2=3.4))
     out = {"design": _time_value_and_grad(f, params, args, repeats, not quick), "steps": grid.steps + grid.dwell_steps}
     out["design"]["workspace_build_s"] = ws_s
     if not quick:
         path = make_path(cycle, "lame", 0.025)
-        f_law, args_law = law_objective_args(models, path, tf, dwell, grid, scales)
+        f_law, args_law = law_objective_args(models, path, tf, dwell, grid, scales, power=c.robust_power,
+                                             order=c.law_order)
         out["law"] = _time_value_and_grad(f_law, coef, args_law, repeats, True)
     return out
 

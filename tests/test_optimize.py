@@ -29,19 +29,20 @@ def test_law_gradient_matches_central_differences_full_6kg_rollout():
     the law, so a 1e-4 step can straddle a kink (errors up to 5e-5); at 1e-5 the measured errors are
     <= 6e-7). The program is the one ``jaxflex optimize --law-only --train nominal`` compiles."""
     from jaxflex.optimize.loop import value_and_grad
-    from jaxflex.optimize.study import law_objective_args, training_models
+    from jaxflex.optimize.study import StudyConfig, law_objective_args, training_models
 
     robot, cycle = robot_preset("default"), cycle_preset()
     models = training_models(robot, [6.0], "nominal")
+    config = dict(power=StudyConfig.robust_power, order=StudyConfig.law_order)   # the command's objective
     path = make_path(cycle, "lame", 0.025)
     grid = default_grid(robot, [TF], DWELL)
     coef = jnp.asarray([1.0, 1.3, 0.8, 1.1, 0.9, 1.2])
     scales = Scales(jnp.full(1, 1e-3), jnp.full(1, 1e-10), jnp.full(1, jnp.inf), jnp.ones(1))
-    f, args = law_objective_args(models, path, TF, DWELL, grid, scales)
+    f, args = law_objective_args(models, path, TF, DWELL, grid, scales, **config)
     torque = float(value_and_grad(coef, args, f=f)[0][1]["torque"][0])
     # a bound 1 % below the peak torque: the penalty term is on, and its size comparable to the rest
     scales = Scales(jnp.full(1, 1e-3), jnp.full(1, 1e-10), jnp.full(1, 0.99 * torque), jnp.ones(1))
-    f, args = law_objective_args(models, path, TF, DWELL, grid, scales, args[0])
+    f, args = law_objective_args(models, path, TF, DWELL, grid, scales, args[0], **config)
     (value, aux), grad = value_and_grad(coef, args, f=f)
     assert np.isfinite(float(value)) and np.all(np.isfinite(np.asarray(grad)))
     value_of = lambda c: float(value_and_grad(c, args, f=f)[0][0])
@@ -168,19 +169,20 @@ def test_the_optimizers_own_gradient_matches_central_differences():
     chain (custom JVPs, the remainder, the table rebuild) shows as errors of percent. The program is the one ``jaxflex optimize --train
     nominal`` compiles, so the command and this check share it."""
     from jaxflex.optimize.loop import value_and_grad
-    from jaxflex.optimize.study import design_objective, training_models
+    from jaxflex.optimize.study import StudyConfig, design_objective, training_models
 
     robot, cycle = robot_preset("default"), cycle_preset()
     models = training_models(robot, [6.0], "nominal")
+    config = dict(power=StudyConfig.robust_power, order=StudyConfig.law_order, blend=StudyConfig.blend)
     grid = default_grid(robot, [TF], DWELL)
     p0 = encode(cycle, design(d=0.02, e=0.03, n=3.5, coef=[1.0, 1.2, 0.9, 1.1, 0.8, 1.05], d2=0.022, e2=0.04,
                               n2=3.2))
     f, args = design_objective(models, cycle, TF, DWELL, grid, Scales(jnp.full(1, 1e-3), jnp.full(1, 1e-10),
-                                                                      jnp.full(1, jnp.inf), jnp.ones(1)))
+                                                                      jnp.full(1, jnp.inf), jnp.ones(1)), **config)
     torque = float(value_and_grad(p0, args, f=f)[0][1]["torque"][0])
     # a bound 1 % below the peak torque: the penalty term is on, and its size comparable to the rest
     scales = Scales(jnp.full(1, 1e-3), jnp.full(1, 1e-10), jnp.full(1, 0.99 * torque), jnp.ones(1))
-    f, args = design_objective(models, cycle, TF, DWELL, grid, scales, args[-1])
+    f, args = design_objective(models, cycle, TF, DWELL, grid, scales, args[-1], **config)
     (value, aux), grad = value_and_grad(p0, args, f=f)
     value_of = lambda p: float(value_and_grad(p, args, f=f)[0][0])
     for field in ("blend", "coef"):
