@@ -37,10 +37,10 @@ def test_release_compiled_returns_the_mappings_of_compiled_programs():
 
     assert mapping_limit() is None or mapping_limit() > 0
     before, loaded, after = run_isolated(_release_check)
-    # each kernel maps a few regions: 60 kernels usually add well over 100 mappings. Some hosts place
+    # each kernel maps a region or more: 60 kernels usually add about 100 mappings. Some hosts place
     # the code in mappings that exist already (seen on a CI host: 519 before and after loading); there
     # is then nothing to give back and nothing for the mapping limit to count.
-    if loaded - before <= 100:
+    if loaded - before < 50:
         pytest.skip(f"loading 60 kernels added {loaded - before} mappings on this host ({before} -> {loaded})")
     # most of them are returned (the rest: allocator pools that stay with the process)
     assert loaded - after > 0.5 * (loaded - before), (before, loaded, after)
