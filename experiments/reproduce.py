@@ -170,7 +170,7 @@ def _optimization(out: Path, quick: bool, key: dict) -> dict:
         rec = resumable(d / "study.json", key,
                         lambda: isolated(opt.compute, payloads=payloads, tf=tf, steps=steps, out=str(d),
                                          grid=grid, train="nominal" if quick else train, n_coef=n_coef,
-                                         verify=not quick, box_samples=8 if quick else 200,
+                                         verify=not quick, box_samples=4 if quick else 200,
                                          richer_modes=1 if quick else 3),
                         f"optimization {name} kg")
         res["cases"].append({"dir": d.relative_to(out).as_posix(), "text": opt.text(rec), "record": rec})
@@ -234,7 +234,7 @@ def _optimization_section(res: dict, out: Path) -> str:
              "corners (G2) the same robust objective left 30-36 um at the worst perturbed model, the "
              "smoothstep family about 1.2 um (`StudyConfig` docstring).", ""]
     if res.get("quick"):
-        lines += ["(`--quick`: two optimizer steps on the nominal model, 8 random models of the box and the "
+        lines += ["(`--quick`: two optimizer steps on the nominal model, 4 random models of the box and the "
                   "richer model with one extra mode per kind, the 6 kg case only (neither the 0.1 kg case nor the "
                   "design for both payloads), no verification: a smoke run, not results.)", ""]
     for case in res["cases"]:

@@ -3,8 +3,10 @@
 
 The commands run in one process (the ``xdist_group`` marks keep the tests that share a program on
 one worker) so that they share their compiled programs as they do in one session: the nominal 6 kg
-model on the default 0.43 s grid, one design gradient for the optimization commands, the bench and
-the quick reproduce, one law gradient, one rollout program for everything.
+model on the default 0.43 s grid, one design gradient for the optimization commands and the bench,
+one law gradient, one rollout program for everything. The quick reproduce runs on the other worker
+(the longest test: the two workers balance) and loads the design gradient from the session's
+compilation cache when the optimize command has compiled it by then.
 An unexpected exception in a command fails its test: ``main`` turns it into one line on stderr and
 exit status 1, and ``_run`` asserts status 0 and shows that line.
 """
@@ -195,7 +197,7 @@ def test_bench_command(tmp_path, capsys):
     assert rec["peak_rss_mb"] > 0 and "rollout program" in out
 
 
-@pytest.mark.xdist_group("design")
+@pytest.mark.xdist_group("reproduce")
 def test_reproduce_quick_command(tmp_path, capsys):
     """The main job's smoke run: every section, REPORT.md, its JSON/CSV and figures."""
     out_dir = tmp_path / "results"
