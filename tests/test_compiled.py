@@ -20,6 +20,7 @@ def _program(n):
 def _release_check():
     """In a fresh process: mapping counts before compiling, with the program loaded, after release."""
     x = jnp.linspace(0.0, 1.0, 64 * 64).reshape(64, 64)
+    jax.config.update("jax_enable_compilation_cache", False)      # a compiled program, not a cached one
     release_compiled()
     before = mapping_count()
     _program(60)(x).block_until_ready()
