@@ -32,6 +32,7 @@ def _numbers(tree):
         yield tree
 
 
+@pytest.mark.xdist_group("notebooks")          # one worker: the notebooks share their compiled programs
 @pytest.mark.parametrize("name", list(FIGURES))
 def test_notebook_runs_in_quick_mode(name, tmp_path, monkeypatch):
     monkeypatch.setenv("JAXFLEX_QUICK", "1")
