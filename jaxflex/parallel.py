@@ -7,12 +7,16 @@ and rollouts of a large model set (the 200 random models of an uncertainty box) 
 the time. Every call is the same program on its own inputs, so the results are identical to the
 sequential ones, in the same order.
 
+``Beside`` runs one function in a background thread while the caller goes on, with cancellation
+when the caller fails.
+
 ``JAXFLEX_THREADS`` sets the number of threads (default: the number of cores, at most 4; 1 turns
 the pool off).
 """
 from __future__ import annotations
 
 import os
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from typing import Callable, Sequence
 
@@ -47,3 +51,30 @@ def host_map(fn: Callable, items: Sequence) -> list:
     first = run(items[0])
     with ThreadPoolExecutor(max_workers=min(n, len(items) - 1)) as pool:
         return [first] + list(pool.map(run, items[1:]))
+
+
+class Beside:
+    """``fn(cancelled, *args)`` (``cancelled``: a ``threading.Event``) in a background thread from
+    ``with`` entry, for work that goes on beside the caller's (the optimization study evaluates the
+    baselines beside its optimizer); ``result()`` waits for it (re-raising its exception). Leaving the block by an exception cancels it (``fn`` checks the
+    event between its steps) and waits for it to stop."""
+
+    def __init__(self, fn, *args):
+        self._fn, self._args = fn, args
+        self._cancelled = threading.Event()
+        self._pool = None
+        self._future = None
+
+    def __enter__(self):
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxflex-beside")
+        self._future = self._pool.submit(self._fn, self._cancelled, *self._args)
+        return self
+
+    def result(self):
+        return self._future.result()
+
+    def __exit__(self, kind, value, tb):
+        if kind is not None:
+            self._cancelled.set()
+        self._pool.shutdown(wait=True)
+        return False

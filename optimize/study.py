@@ -22,7 +22,7 @@
 
 Time: the design gradient compiles in a background thread while the paper sweep runs
 (``loop.compile_gradient_ahead``), and the evaluation sets with every baseline on them, which do
-not depend on the design, are computed beside the optimizer (``_Beside``); only the optimized
+not depend on the design, are computed beside the optimizer (``jaxflex.parallel.Beside``); only the optimized
 design is evaluated after it. The results are those of the sequential order, bit for bit.
 
 Training sets (SPEC 6: a design counts only if its advantage survives model error): ``box``
@@ -36,9 +36,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import os
-import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple, Sequence
 
 import jax
@@ -53,6 +51,7 @@ from jaxflex.engine import LawEvaluator
 from jaxflex.linearized import path_tables
 from jaxflex.model import richer
 from jaxflex.model_sets import ModelId, ModelSet, model_set, models_of, place_first_mode_hz
+from jaxflex.parallel import Beside
 from jaxflex.path import Cycle, Path, make_path
 from jaxflex.problem import Problem
 from jaxflex.profiles import PROFILES, make_profile, shaped
@@ -395,32 +394,6 @@ def _paper_evaluations(cancelled, robot, cycle, payloads, tf, dwell, grid, confi
     return sets, grids, evaluators, evaluations
 
 
-class _Beside:
-    """``fn(cancelled, *args)`` in a background thread from ``with`` entry; ``result()`` waits for
-    it (re-raising its exception). Leaving the block by an exception cancels it (``fn`` checks the
-    event between its steps) and waits for it to stop."""
-
-    def __init__(self, fn, *args):
-        self._fn, self._args = fn, args
-        self._cancelled = threading.Event()
-        self._pool = None
-        self._future = None
-
-    def __enter__(self):
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxflex-beside")
-        self._future = self._pool.submit(self._fn, self._cancelled, *self._args)
-        return self
-
-    def result(self):
-        return self._future.result()
-
-    def __exit__(self, kind, value, tb):
-        if kind is not None:
-            self._cancelled.set()
-        self._pool.shutdown(wait=True)
-        return False
-
-
 def _workspaces(models: ModelSet, cycle: Cycle, progress: bool) -> Workspace:
     """The training models' workspace tables (``jaxflex.workspace``), with progress on stderr."""
     bar = Progress(f"workspace tables of {len(models.ids)} model(s)", enabled=progress)
@@ -495,7 +468,7 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
                 print(f"  (Ruckig baseline skipped: {err})", flush=True)
     # the evaluation sets and the baselines on them do not depend on the design: they are computed
     # beside the optimizer (a background thread), the optimized design after it
-    beside = _Beside(_paper_evaluations, robot, cycle, payloads, tf, dwell, grid, c, paths["paper"], dict(candidates))
+    beside = Beside(_paper_evaluations, robot, cycle, payloads, tf, dwell, grid, c, paths["paper"], dict(candidates))
     setup_s = time.time() - started
     with beside:
         if free_path:

@@ -120,3 +120,38 @@ def test_host_map_keeps_order_results_and_errors(monkeypatch):
     monkeypatch.setenv("JAXFLEX_THREADS", "0")
     with pytest.raises(ValueError, match="JAXFLEX_THREADS"):
         parallel.threads()
+
+
+def test_beside_returns_the_result_reraises_and_cancels_when_the_caller_fails():
+    """``parallel.Beside``: the background function's result, its exception on ``result()``, and
+    cancellation (the event set, the thread waited for) when the ``with`` block raises."""
+    import threading
+
+    from jaxflex.parallel import Beside
+
+    def work(cancelled, n):
+        total = 0
+        for k in range(n):
+            if cancelled.is_set():
+                return None
+            total += k
+        return total
+
+    with Beside(work, 100) as b:
+        assert b.result() == sum(range(100))
+
+    def fails(cancelled):
+        raise ValueError("beside failed")
+    with Beside(fails) as b, pytest.raises(ValueError, match="beside failed"):
+        b.result()
+
+    started, seen = threading.Event(), []
+
+    def waits(cancelled):
+        started.set()
+        seen.append(cancelled.wait(timeout=30.0))        # True: cancelled, not timed out
+    with pytest.raises(RuntimeError, match="caller"):
+        with Beside(waits):
+            started.wait(timeout=30.0)
+            raise RuntimeError("caller failed")
+    assert seen == [True]                                 # the block's exit waited for the thread
