@@ -39,7 +39,7 @@ def dt_study(dwell: float = 0.1) -> dict:
     runs = {}
     for label, grid in (("base", base), ("quarter", fine)):
         print(f"  dt study: grid {label} {tuple(grid)[:3]}", flush=True)
-        runs[label] = run_sweep(robot, cycle, PAPER_CASES, grid=grid, dwell=dwell)
+        runs[label] = run_sweep(robot, cycle, PAPER_CASES, grid=grid, dwell=dwell, timed=False)
     res = runs["base"]
     for m in METRICS:
         worst, (b, p, c) = _changes(runs["base"].metrics[m], runs["quarter"].metrics[m])
@@ -69,7 +69,7 @@ def reference_study(dt: float = 1e-6, cases=PAPER_CASES, dwell: float = 0.1) -> 
     out = {"dt": dt, "cases": []}
     for case in cases:
         case = Case(*case)
-        fast = run_sweep(robot, cycle, [case], blends=("lame",), dwell=dwell)
+        fast = run_sweep(robot, cycle, [case], blends=("lame",), dwell=dwell, timed=False)
         profiles = [make_profile(p) for p in fast.profiles]
         print(f"  full nonlinear model, {case.payload:g} kg, tf = {case.tf:g} s: RK4 at dt = {dt:g} s "
               f"({len(profiles)} laws, a few minutes) ...", flush=True)

@@ -87,7 +87,8 @@ def cycle_time_study(problem: Problem, tfs: Sequence[float] = (0.43, 0.40, 0.37,
         tfs = np.append(tfs, tf_ref)
     tfs = np.sort(tfs)[::-1]
     grid = default_grid(robot, [float(tfs.max())], dwell)     # step <= 0.1 ms at every tf
-    res = run_sweep(robot, cycle, [Case(payload, float(t)) for t in tfs], dwell=dwell, grid=grid)
+    res = run_sweep(robot, cycle, [Case(payload, float(t)) for t in tfs], dwell=dwell, grid=grid,
+                    timed=False)
     dw = res.metrics["dwell_residual_mm"]                                   # (B, P, T)
     k_ref = int(np.argmin(np.abs(tfs - tf_ref)))
     i, j = np.unravel_index(np.argmin(dw[:, :, k_ref]), dw.shape[:2])

@@ -1,12 +1,10 @@
 """Every subcommand end to end through the console entry point (``jaxflex.experiments.cli:main``, what the
 ``jaxflex`` script calls), on small settings: exit code, the JSON keys and values, the files written.
 
-The commands run in one process (the ``xdist_group`` marks keep the tests that share a program on
-one worker) so that they share their compiled programs as they do in one session: the nominal 6 kg
-model on the default 0.43 s grid, one design gradient for the optimization commands and the bench,
-one law gradient, one rollout program for everything. The quick reproduce runs on the other worker
-(the longest test: the two workers balance) and loads the design gradient from the session's
-compilation cache when the optimize command has compiled it by then.
+The optimization commands and the quick reproduce run in one process (one ``xdist_group``, with the
+optimizer's gradient checks in test_optimize.py) so that they share their compiled programs as they
+do in one session: the nominal 6 kg model on the default 0.43 s grid, one design gradient for the
+optimize, cycle-time, bench and reproduce runs, one law gradient, the richer model's programs.
 An unexpected exception in a command fails its test: ``main`` turns it into one line on stderr and
 exit status 1, and ``_run`` asserts status 0 and shows that line.
 """
@@ -118,7 +116,7 @@ def _read_csv(path):
     return rows[0], np.asarray(rows[1:], dtype=float)
 
 
-@pytest.mark.xdist_group("design")
+@pytest.mark.xdist_group("commands")
 def test_optimize_command_writes_its_outputs_and_resumes(tmp_path, capsys):
     """Two optimizer steps on the nominal model with --out: the study JSON, trajectory.csv (t, x, y,
     q1, q2 at 10 kHz over [0, tf], from the pick to the place point, q the IGM of (x, y)), the
@@ -162,7 +160,7 @@ def test_optimize_command_writes_its_outputs_and_resumes(tmp_path, capsys):
     assert rec2["laws"]["optimized"]["dwell_residual_mm"] == rec["laws"]["optimized"]["dwell_residual_mm"]
 
 
-@pytest.mark.xdist_group("law")
+@pytest.mark.xdist_group("commands")
 def test_optimize_law_only_command(tmp_path, capsys):
     path = tmp_path / "law.json"
     _run(["optimize", *OPT, "--law-only", "--box-samples", "0", "--richer-modes", "0", "--json", path], capsys)
@@ -173,7 +171,7 @@ def test_optimize_law_only_command(tmp_path, capsys):
     assert all(math.isfinite(x) for x in _finite_numbers(rec))
 
 
-@pytest.mark.xdist_group("design")
+@pytest.mark.xdist_group("commands")
 def test_optimize_cycle_time_command(tmp_path, capsys):
     out_dir, path = tmp_path / "ct", tmp_path / "ct.json"
     _run(["optimize", "--cycle-time", "0.43", "0.40", "--payload", "6", "--tf", "0.43", "--steps", "2",
@@ -185,7 +183,7 @@ def test_optimize_cycle_time_command(tmp_path, capsys):
     assert (out_dir / "cycle_time.json").is_file() and (out_dir / "cycle_time.png").stat().st_size > 1000
 
 
-@pytest.mark.xdist_group("design")
+@pytest.mark.xdist_group("commands")
 def test_bench_command(tmp_path, capsys):
     path = tmp_path / "b.json"
     out, _ = _run(["bench", "--quick", "--repeats", "1", "--json", path], capsys)
@@ -197,7 +195,7 @@ def test_bench_command(tmp_path, capsys):
     assert rec["peak_rss_mb"] > 0 and "rollout program" in out
 
 
-@pytest.mark.xdist_group("reproduce")
+@pytest.mark.xdist_group("commands")
 def test_reproduce_quick_command(tmp_path, capsys):
     """The main job's smoke run: every section, REPORT.md, its JSON/CSV and figures."""
     out_dir = tmp_path / "results"

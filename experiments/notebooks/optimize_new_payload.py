@@ -111,7 +111,7 @@ print(f"new case: {PAYLOAD:g} kg in {TF:g} s, dwell {DWELL:g} s")
 # %%
 if QUICK:
     res = run_sweep(robot, cycle, [Case(PAYLOAD, TF)], dwell=DWELL, blends=blends, profiles=PROFILES,
-                    grid=grid, with_series=True, second_order=False)
+                    grid=grid, with_series=True, second_order=False, timed=False)
     paper = {k: np.asarray(v) for k, v in res.metrics.items()}               # (blend, law, case)
     paper_blends, paper_profiles = res.blends, res.profiles
     dw = paper["dwell_residual_mm"][:, :, 0]
