@@ -214,6 +214,10 @@ def test_reproduce_quick_command(tmp_path, capsys):
     for model in ("paper model", "richer model"):
         cases = rich["dwell_residual_mm"][model]
         assert len(cases) == 2 and all(len(c) == 12 and all(v > 0 for v in c.values()) for c in cases.values())
+    # the paper model's residuals are the vibration study's (the same sweep, not simulated twice)
+    vib = json.loads((out_dir / "vibration.json").read_text())
+    assert rich["dwell_residual_mm"]["paper model"]["6 kg, 0.43 s"]["clothoid/trap_1_8"] == \
+        vib["case0"]["dwell_residual_mm"]["clothoid"]["trap_1_8"]
     assert not (out_dir / "optimize_0.1kg").exists()          # quick: the 6 kg case only
     pngs = list((out_dir / "figures").glob("*.png"))
     assert len(pngs) >= 5 and all(p.stat().st_size > 1000 for p in pngs)
