@@ -20,6 +20,8 @@ keeps their one-sided smoothness at the G2 joins. The tables do not depend on th
 """
 from __future__ import annotations
 
+import threading
+from collections import OrderedDict
 from typing import NamedTuple
 
 import jax
@@ -261,13 +263,48 @@ def _robot_list(robot: Robot) -> list[Robot]:
     return [jax.tree_util.tree_map(lambda a: a[k], robot) for k in range(np.shape(robot.payload)[0])]
 
 
+_MEMO: OrderedDict = OrderedDict()     # content key -> Coeffs (coeffs_many's recent results)
+_MEMO_LOCK = threading.Lock()
+MEMO_BYTES = 256 * 2**20   # the remembered results' total size: the oldest go first beyond it
+
+
+def _remember(key: bytes, value: Coeffs) -> None:
+    size = sum(np.asarray(v).nbytes for v in jax.tree_util.tree_leaves(value))
+    if size > MEMO_BYTES // 4:
+        return
+    with _MEMO_LOCK:
+        _MEMO[key] = (value, size)
+        while sum(s for _, s in _MEMO.values()) > MEMO_BYTES:
+            _MEMO.popitem(last=False)
+
+
+def clear_memo() -> None:
+    """Forget ``coeffs_many``'s remembered results (they only cost memory: at most ``MEMO_BYTES``)."""
+    with _MEMO_LOCK:
+        _MEMO.clear()
+
+
 def coeffs_many(robot: Robot, qa, qa1, qa2) -> Coeffs:
     """``coeffs_at`` for any number N of poses (qa, qa1, qa2: (N, 2) each) through one compiled
     program of fixed shape (``COEFF_CHUNK`` poses per call) that every table builder shares: the
     sweep tables, the model-set tables and the workspace tables compile ``pose_coeffs`` once per
     process (it is the costly compilation: ~20 s on a 2-core CPU). ``robot`` may be a stack of K
     robots; then the poses are (K, N, 2) or shared (N, 2), and every leaf gets a leading K axis.
-    Not traceable (call it on concrete arrays)."""
+    Not traceable (call it on concrete arrays). Recent results are remembered by the content of the
+    inputs (``trees.content_key``): the same robots and poses again (a study's tables rebuilt by the
+    next study or a rerun in the same process) return the same arrays without running the program."""
+    key = trees.content_key(robot, qa, qa1, qa2)
+    with _MEMO_LOCK:
+        hit = _MEMO.get(key)
+        if hit is not None:
+            _MEMO.move_to_end(key)
+            return hit[0]
+    out = _coeffs_many(robot, qa, qa1, qa2)
+    _remember(key, out)
+    return out
+
+
+def _coeffs_many(robot: Robot, qa, qa1, qa2) -> Coeffs:
     robots = _robot_list(robot)
     stacked = np.ndim(robot.payload) > 0
     poses = [np.asarray(a, dtype=float) for a in (qa, qa1, qa2)]

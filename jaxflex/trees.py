@@ -7,6 +7,7 @@ values only (inside a traced function use ``jnp`` directly).
 """
 from __future__ import annotations
 
+import hashlib
 from typing import Sequence
 
 import jax
@@ -24,3 +25,18 @@ def concatenate(trees: Sequence, length: int | None = None):
     (and cut to its first ``length`` entries if given)."""
     return jax.tree_util.tree_map(lambda *a: jnp.asarray(np.concatenate([np.asarray(v) for v in a])[:length]),
                                   *trees)
+
+
+def content_key(*trees) -> bytes:
+    """A digest of pytrees of concrete arrays: their structure, every leaf's dtype, shape and bytes.
+    Equal keys mean equal inputs (to the hash's collision odds, 2^-160), so a deterministic function
+    of them can return a remembered result."""
+    h = hashlib.blake2b(digest_size=20)
+    for tree in trees:
+        leaves, treedef = jax.tree_util.tree_flatten(tree)
+        h.update(str(treedef).encode())
+        for leaf in leaves:
+            a = np.ascontiguousarray(np.asarray(leaf))
+            h.update(f"{a.dtype.str}{a.shape}".encode())
+            h.update(a.tobytes())
+    return h.digest()

@@ -177,3 +177,27 @@ def test_tables_are_fine_enough_for_long_blends_at_the_micrometre_level(monkeypa
     r0, r1 = residual(default), residual(finer)
     assert 5e-4 < r1 < 5e-3, r1                                     # mm: a micrometre-level residual
     assert abs(r0 / r1 - 1.0) < 0.01, (r0, r1)
+
+
+def test_coeffs_many_remembers_its_results_by_content(setup):
+    """``coeffs_many`` remembers recent results by the content of its inputs: equal robots and poses
+    (new arrays) give back the same result; any change of a model parameter or a pose computes
+    afresh (a different result), and a cleared memo recomputes the same values bit for bit."""
+    from jaxflex import linearized
+
+    robot, path, _ = setup
+    poses = [np.asarray(p) for p in linearized.robot_table_poses(robot, path)]
+    a = linearized.coeffs_many(robot, *poses)
+    assert linearized.coeffs_many(robot, *[p.copy() for p in poses]) is a
+    flat = lambda c: np.concatenate([np.ravel(x) for x in jax.tree_util.tree_leaves(c)])
+    heavier = linearized.coeffs_many(robot.replace(payload=6.06), *poses)
+    assert heavier is not a and not np.allclose(flat(heavier), flat(a), rtol=1e-4, atol=0)
+    moved = [p.copy() for p in poses]
+    moved[0][3, 1] += 1e-6
+    shifted = linearized.coeffs_many(robot, *moved)
+    assert shifted is not a and not np.array_equal(flat(shifted), flat(a))
+    linearized.clear_memo()
+    again = linearized.coeffs_many(robot, *poses)
+    assert again is not a
+    for x, y in zip(jax.tree_util.tree_leaves(again), jax.tree_util.tree_leaves(a)):
+        np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
