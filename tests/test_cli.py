@@ -1,8 +1,8 @@
 """Every subcommand end to end through the console entry point (``jaxflex.experiments.cli:main``, what the
 ``jaxflex`` script calls), on small settings: exit code, the JSON keys and values, the files written.
 
-The optimization commands and the quick reproduce run in one process (one ``xdist_group``, with the
-optimizer's gradient checks in test_optimize.py) so that they share their compiled programs as they
+The sweep and optimization commands and the quick reproduce run in one process (one ``xdist_group``,
+with the optimizer's gradient checks and the paper-sweep check in test_optimize.py) so that they share their compiled programs as they
 do in one session: the nominal 6 kg model on the default 0.43 s grid, one design gradient for the
 optimize, cycle-time, bench and reproduce runs, one law gradient, the richer model's programs.
 An unexpected exception in a command fails its test: ``main`` turns it into one line on stderr and
@@ -92,6 +92,7 @@ def test_optimize_command_defaults_are_the_study_defaults():
     assert a.objective == "worst" and c.absolute and c.robust_power == ROBUST_POWER and a.free_path == c.free_path
 
 
+@pytest.mark.xdist_group("commands")
 def test_sweep_command(tmp_path, capsys):
     """The 12 combinations, 6 kg, tf 0.43 s, default step: SPEC 7 keys, every SPEC 5 metric per run,
     finite and physically sized, and the table with every metric."""
