@@ -269,7 +269,7 @@ MEMO_BYTES = 256 * 2**20   # the remembered results' total size: the oldest go f
 
 
 def _remember(key: bytes, value: Coeffs) -> None:
-    size = sum(np.asarray(v).nbytes for v in jax.tree_util.tree_leaves(value))
+    size = sum(v.nbytes for v in jax.tree_util.tree_leaves(value))      # no copy to the host
     if size > MEMO_BYTES // 4:
         return
     with _MEMO_LOCK:
