@@ -20,6 +20,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxflex import trees
+from jaxflex.compiled import HOT_LOOP
 from jaxflex.linearized import Tables, path_tables
 from jaxflex.metrics import batch_metrics
 from jaxflex.model_sets import ModelSet
@@ -30,7 +31,7 @@ from jaxflex.robot import Robot
 from jaxflex.simulate import Grid, MotionSamples, Series, rollout, sample_motion
 
 
-@functools.partial(jax.jit, static_argnames=("grid", "second_order"))
+@functools.partial(jax.jit, static_argnames=("grid", "second_order"), compiler_options=HOT_LOOP)
 def _run(tables: Tables, samples: MotionSamples, tf, dwell, robot: Robot, grid: Grid, second_order: bool):
     return rollout(tables, samples, tf, dwell, grid, robot if second_order else None)
 

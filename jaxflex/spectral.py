@@ -5,6 +5,8 @@ error. ``jax.scipy.signal.welch`` with the paper figures' settings, so it also r
 """
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import jax.scipy.signal  # noqa: F401  (the submodule)
@@ -23,15 +25,21 @@ def welch(x, fs: float, nperseg: int | None = None):
         freqs (nperseg // 2 + 1,) [Hz] and psd (..., nperseg // 2 + 1) [U^2/Hz]. The PSD integrates
         (sum * df) to the mean square of the detrended signal (Parseval), as scipy.signal.welch.
     """
-    x = jnp.asarray(x)
+    x = jnp.asarray(x, dtype=float)
     n = x.shape[-1]
     nperseg = int(min(n, 1024) if nperseg is None else nperseg)
     if nperseg < 2 or nperseg > n:
         raise ValueError(f"nperseg must be in [2, {n}], got {nperseg}")
-    freqs, psd = jax.scipy.signal.welch(x, fs=fs, window="hann", nperseg=nperseg, noverlap=nperseg - nperseg // 2,
-                                        detrend="constant", return_onesided=True, scaling="density",
-                                        axis=-1, average="mean")
-    return freqs, psd
+    return _welch(x, jnp.asarray(fs, dtype=x.dtype), nperseg)
+
+
+@functools.partial(jax.jit, static_argnames=("nperseg",))
+def _welch(x, fs, nperseg: int):
+    """One compiled program per signal shape and segment length (called eagerly, the op-by-op
+    evaluation compiled and dispatched every primitive on its own)."""
+    return jax.scipy.signal.welch(x, fs=fs, window="hann", nperseg=nperseg, noverlap=nperseg - nperseg // 2,
+                                  detrend="constant", return_onesided=True, scaling="density",
+                                  axis=-1, average="mean")
 
 
 def dominant_frequencies(freqs, psd, k: int = 3, fmin: float = 0.0):

@@ -110,7 +110,7 @@ def _value_and_grad(f: Callable, args, mode: str):
     return value_and_grad_fwd(g) if mode == "forward" else jax.value_and_grad(g, has_aux=True)
 
 
-@functools.partial(jax.jit, static_argnames=("f", "mode"))
+@functools.partial(jax.jit, static_argnames=("f", "mode"), compiler_options=compiled.HOT_LOOP)
 def _value_and_grad_jit(params, args, f, mode):
     return _value_and_grad(f, args, mode)(params)
 

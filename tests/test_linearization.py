@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from jaxflex import model as mdl
-from jaxflex.linearized import evaluate, interpolate, path_pose, path_tables, pose_coeffs
+from jaxflex.linearized import coeffs_many, evaluate, interpolate, path_pose, path_tables
 from jaxflex.path import make_path
 from jaxflex.robot import cycle_preset, robot_preset
 from jaxflex.simulate import _frozen, _propagator
@@ -89,7 +89,8 @@ def test_tables_interpolate_the_coefficients_between_nodes(setup):
     robot, path, tables = setup
     rng = np.random.default_rng(4)
     s = np.sort(rng.uniform(0.0, float(path.length), 6))
-    exact = jax.jit(jax.vmap(lambda x: pose_coeffs(robot, *path_pose(robot, path, x))))(jnp.asarray(s))._asdict()
+    poses = jax.jit(jax.vmap(lambda x: path_pose(robot, path, x)))(jnp.asarray(s))
+    exact = coeffs_many(robot, *poses)._asdict()       # pose_coeffs, through the library's shared program
     got = jax.jit(jax.vmap(lambda x: interpolate(tables, x)))(jnp.asarray(s))._asdict()
     for name in ("mass", "f0", "f1", "f2", "k0", "k2", "c1", "t1", "t2", "tq0", "jx", "jx1", "jx2"):
         scale = float(np.abs(np.asarray(tables.values._asdict()[name])).max())
