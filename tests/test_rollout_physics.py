@@ -164,7 +164,10 @@ def _quasi_static_error(robot, path, law, tf, t):
             red = mdl.reduced(robot, qa, qe, qad, jnp.zeros_like(qe))
             return red.mass[2:, :2] @ qadd + red.force[2:]
 
-        newton = lambda _, qe: qe - jnp.linalg.solve(jax.jacfwd(resid)(qe), resid(qe))
+        def newton(_, qe):      # the residual and its Jacobian from one evaluation of the model
+            jac, r = jax.jacfwd(lambda z: (lambda v: (v, v))(resid(z)), has_aux=True)(qe)
+            return qe - jnp.linalg.solve(jac, r)
+
         qe = jax.lax.fori_loop(0, 3, newton, jnp.zeros(12))
         return mdl.ee_position(robot, qa, qe) - mdl.ee_position(robot, qa, jnp.zeros(12))
 
