@@ -76,20 +76,25 @@ def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwe
     f, args = design_objective(models, cycle, tf, dwell, grid, scales, ws, power=c.robust_power,
                                order=c.law_order, blend=c.blend)
     params = encode(cycle, design(0.0245, 0.03, 3.2, coef, e2=0.035, n2=3.4))
-    out = {"design": _time_value_and_grad(f, params, args, repeats, not quick), "steps": grid.steps + grid.dwell_steps}
+    out = {"design": _time_value_and_grad(f, params, args, repeats, not quick, hot=not quick),
+           "steps": grid.steps + grid.dwell_steps}
     out["design"]["workspace_build_s"] = ws_s
     if not quick:
         path = make_path(cycle, "lame", 0.025)
         f_law, args_law = law_objective_args(models, path, tf, dwell, grid, scales, power=c.robust_power,
                                              order=c.law_order)
-        out["law"] = _time_value_and_grad(f_law, coef, args_law, repeats, True)
+        out["law"] = _time_value_and_grad(f_law, coef, args_law, repeats, True, hot=True)
     return out
 
 
-def _time_value_and_grad(f, params, args, repeats: int, forward: bool) -> dict:
+def _time_value_and_grad(f, params, args, repeats: int, forward: bool, hot: bool) -> dict:
+    """Compile and run times of the optimizer's value and gradient: ``hot``, the program a long
+    optimization runs (``loop.is_hot``); else the one of a few steps (the quick bench shares it with
+    a smoke run's optimizer)."""
     from jaxflex.optimize.loop import value_and_grad
 
-    first, run, _ = _time_first_and_median(lambda p: value_and_grad(p, args, f=f), params, repeats=repeats)
+    first, run, _ = _time_first_and_median(lambda p: value_and_grad(p, args, f=f, hot=hot), params,
+                                           repeats=repeats)
     rec = {"parameters": int(sum(np.size(v) for v in jax.tree_util.tree_leaves(params))),
            "grad_compile_s": max(first - run, 0.0), "grad_run_s": run}
     if forward:

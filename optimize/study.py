@@ -63,7 +63,7 @@ from jaxflex.sweep import default_grid
 from jaxflex.workspace import Workspace, build_workspace
 
 from .baselines import ruckig_samples, shaper_profiles
-from .loop import OptimizerConfig, OptResult, compile_gradient_ahead, minimize
+from .loop import OptimizerConfig, OptResult, compile_gradient_ahead, is_hot, minimize
 from .objective import TORQUE_WEIGHT, Params, Scales, decode, encode, law_objective, objective
 
 PERTURB_E = (0.95, 1.0, 1.05)
@@ -437,7 +437,7 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
         if steps > 0:
             f, args = design_objective(models, cycle, tf, dwell, grid, _abstract_scales(len(models.ids), weights),
                                        workspaces, power=c.robust_power, order=c.law_order, blend=c.blend)
-            compile_gradient_ahead(encode(cycle, x0), args, f=f)
+            compile_gradient_ahead(encode(cycle, x0), args, f=f, hot=is_hot(steps))
     sweep = paper_sweep(models, cycle, tf, dwell, grid, progress=progress)
     nominal = nominal_indices(models, payloads)
     paper = {k: v[..., nominal] for k, v in sweep.metrics.items()}                 # (B, P, C)
