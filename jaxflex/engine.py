@@ -8,6 +8,9 @@ is no faster: 24 rollouts take ~1.0 s either way), so no batch size ever costs a
 from a few threads at once (``jaxflex.parallel``: ~0.7x the time on 2 cores);
 the metrics come from a small program of their own (``metrics.batch_metrics``).
 
+The rollout program is a hot program: it compiles with ``jaxflex.compiled.HOT_LOOP`` whatever
+XLA_FLAGS say (LLVM level 1 runs it as fast as level 3 and compiles it sooner).
+
 ``run`` validates nothing: callers check their inputs before building tables (SPEC 8).
 """
 from __future__ import annotations
