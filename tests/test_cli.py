@@ -2,7 +2,7 @@
 ``jaxflex`` script calls), on small settings: exit code, the JSON keys and values, the files written.
 
 The sweep and optimization commands and the quick reproduce run in one process (one ``xdist_group``,
-with the optimizer's gradient checks and the paper-sweep check in test_optimize.py) so that they share their compiled programs as they
+with the optimizer's gradient checks in test_optimize.py) so that they share their compiled programs as they
 do in one session: the nominal 6 kg model on the default 0.43 s grid, one design gradient for the
 optimize, cycle-time, bench and reproduce runs, one law gradient, the richer model's programs.
 An unexpected exception in a command fails its test: ``main`` turns it into one line on stderr and

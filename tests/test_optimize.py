@@ -218,7 +218,9 @@ def test_design_gradient_wrt_blend_parameters_matches_central_differences(tables
         assert abs(float(grad.blend[i]) - fd) <= 1e-5 * abs(fd), (i, float(grad.blend[i]), fd)
 
 
-@pytest.mark.xdist_group("commands")
+# with the notebooks: the same small model and coarse grid (their quick mode), so one process compiles
+# its coefficient and rollout programs once
+@pytest.mark.xdist_group("notebooks")
 def test_paper_sweep_on_training_models_matches_run_sweep_and_chunks_do_not_change_metrics():
     """The study's paper sweep (``paper_sweep``: one evaluator per blend on the training models)
     gives the nominal model the metrics of ``run_sweep`` (same model, different programs: equal to
