@@ -31,7 +31,8 @@ _CONFIG = ("jax_enable_x64", "jax_compilation_cache_dir", "jax_persistent_cache_
 
 # XLA options of the hot programs, compiled once and then run many times: the engine's rollout
 # (thousands of steps, hundreds of runs per study) and the value and gradient of a long optimization
-# (hundreds of steps; ``optimize.loop.is_hot``). They override XLA_FLAGS for these programs only. Measured cold on 2 cores:
+# (hundreds of steps; ``optimize.loop.is_hot``). They override XLA_FLAGS for these programs only.
+# Measured cold on 2 cores:
 # - LLVM level 1 runs them as fast as level 3 and compiles them sooner (the gradient: 126 ms per
 #   step and 42 s to compile, against 147 ms and 50 s at the default level 3); at level 0 (the test
 #   suite's global setting, which cuts the compile time of its run-once programs by a third) they
