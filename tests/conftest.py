@@ -11,10 +11,21 @@ import tempfile
 # them with LLVM's quick optimization level (about a third less compile time; the programs run up to
 # 1.5x slower and agree with the fully optimized ones to round-off, ~1e-12 relative) and with XLA's
 # classic elemental emitters instead of the fusion emitters (the optimizer's gradient: 20 s instead
-# of 27 s, and it runs faster). Set XLA_FLAGS yourself to test with other options. Before jax is
-# imported: the backend reads it once.
+# of 27 s, and it runs faster). Each of the two xdist workers has one core of its own: LLVM code
+# generation in one thread (XLA splits a module into up to 32 parts compiled by a thread pool) and
+# single-threaded Eigen calls, so that the workers' threads do not compete for the two cores
+# (measured with JAXFLEX_THREADS=1 below: 304 s and 587 CPU-seconds for the suite against 333 s and
+# 643). Set XLA_FLAGS yourself to test with other options. Before jax is imported: the backend
+# reads it once.
 if "XLA_FLAGS" not in os.environ:
-    os.environ["XLA_FLAGS"] = "--xla_backend_optimization_level=0 --xla_cpu_use_fusion_emitters=false"
+    os.environ["XLA_FLAGS"] = ("--xla_backend_optimization_level=0 --xla_cpu_use_fusion_emitters=false "
+                               "--xla_cpu_parallel_codegen_split_count=1 --xla_cpu_multi_thread_eigen=false")
+
+# Two xdist workers already keep both cores busy: each runs its engine calls one after another
+# (``jaxflex.parallel``: JAXFLEX_THREADS=1) instead of from a thread per core, which would put four
+# busy threads on two cores (measured: about 60 s less CPU time over the suite, the same results:
+# the threads run the same programs on the same inputs). Set JAXFLEX_THREADS yourself to override.
+os.environ.setdefault("JAXFLEX_THREADS", "1")
 
 # The xdist workers start after this file is read, so they inherit the environment the ``jaxflex``
 # console script runs in: glibc's malloc on transparent huge pages (about half the kernel time of

@@ -218,24 +218,24 @@ def test_design_gradient_wrt_blend_parameters_matches_central_differences(tables
         assert abs(float(grad.blend[i]) - fd) <= 1e-5 * abs(fd), (i, float(grad.blend[i]), fd)
 
 
-# with the notebooks: the same small model and coarse grid (their quick mode), so one process compiles
-# its coefficient and rollout programs once
-@pytest.mark.xdist_group("notebooks")
+# with the commands: the default model on the default grid, whose coefficient and rollout programs
+# the sweep and optimize commands compile in that process (nothing new to compile here)
+@pytest.mark.xdist_group("commands")
 def test_paper_sweep_on_training_models_matches_run_sweep_and_chunks_do_not_change_metrics():
     """The study's paper sweep (``paper_sweep``: one evaluator per blend on the training models)
-    gives the nominal model the metrics of ``run_sweep`` (same model, different programs: equal to
-    rounding), and an evaluator that simulates its models in padded batches (``chunk``: the nine
-    perturbed models as 5 + 4 and one padding copy) returns, for the five models it shares with the
-    training set, the training evaluator's metrics. Small model and coarse grid: the code path, not
-    the physics, is under test."""
+    gives the nominal model the metrics of ``run_sweep`` (same model, different callers of the
+    engine: equal to rounding), and an evaluator that simulates its models in padded batches
+    (``chunk``: the nine perturbed models as 5 + 4 and one padding copy) returns, for the five
+    models it shares with the training set, the training evaluator's metrics. The default 6 kg
+    model, grid and 0.43 s motion of ``jaxflex optimize``."""
     from jaxflex.engine import LawEvaluator
     from jaxflex.model_sets import model_set
     from jaxflex.optimize.study import PERTURB_E, PERTURB_PAYLOAD, nominal_indices, paper_sweep, training_models
     from jaxflex.profiles import make_profile
     from jaxflex.sweep import Case, run_sweep
 
-    robot, cycle = robot_preset("default", n_bending=1, n_axial=1), cycle_preset()
-    grid = default_grid(robot, [TF], DWELL, dt=2e-3)._replace(dwell_steps=500, unroll=1)
+    robot, cycle = robot_preset("default"), cycle_preset()
+    grid = default_grid(robot, [TF], DWELL)
     blends, laws = ("lame",), ("poly7", "trap_1_4")
     models = training_models(robot, [6.0], "spanning")
     sweep = paper_sweep(models, cycle, TF, DWELL, grid, blends=blends, profiles=laws)

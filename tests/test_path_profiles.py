@@ -6,8 +6,13 @@ import pytest
 
 from jaxflex.blends import BLENDS
 from jaxflex.path import make_path, path_frame
-from jaxflex.profiles import PROFILES, make_profile, profile_eval, shaped, trapezoid
+from jaxflex import profiles
+from jaxflex.profiles import PROFILES, make_profile, shaped, trapezoid
 from jaxflex.robot import cycle_preset
+
+# the law evaluated as one compiled program per law kind and shape (evaluated op by op, each of its
+# hundreds of operations compiles a kernel of its own)
+profile_eval = jax.jit(profiles.profile_eval, static_argnames="side")
 
 frames = jax.jit(jax.vmap(path_frame, in_axes=(None, 0)))
 

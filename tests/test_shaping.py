@@ -1,9 +1,15 @@
 """Input-shaped motion laws (ZV / ZVD baselines of the optimization study)."""
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxflex.profiles import input_shaped, make_profile, profile_eval, zv, zvd
+from jaxflex import profiles
+from jaxflex.profiles import input_shaped, make_profile, zv, zvd
+
+# the law evaluated as one compiled program per law kind and shape (evaluated op by op, each of its
+# hundreds of operations compiles a kernel of its own)
+profile_eval = jax.jit(profiles.profile_eval, static_argnames="side")
 
 TF = 0.43
 

@@ -152,15 +152,26 @@ def _rigid_torques_along(robot, path, tf, t):
     return jax.vmap(lambda a, b, c: rigid_torques(robot, a, b, c))(q, qd, qdd)
 
 
+# the quartered grid of the step-convergence test: every step a quarter of the default grid's (four
+# times as many frozen intervals and dwell steps), with the exponential's squarings for a robot 100x
+# stiffer than the default: its default grid's squarings less two, for steps h / 4 (default_grid's
+# bound 4 omega h <= 2^(s - 1)). The stiffness test and the convergence test share it, and so one
+# compiled rollout program.
+_STIFF = robot_preset("default").replace(young=100 * robot_preset("default").young)
+GRID4 = GRID._replace(coarse=4 * GRID.coarse, dwell_steps=4 * GRID.dwell_steps,
+                      squarings=default_grid(_STIFF, [0.43], 0.1).squarings - 2)
+
+
+@pytest.mark.xdist_group("quartered-grid")
 def test_torques_tend_to_rigid_inverse_dynamics_as_stiffness_grows(setup):
     """max |tau - tau_rigid| shrinks as E grows; tau_rigid from the independent virtual-power rigid
     model. The quasi-static part of the correction scales like 1/E, but the vibratory part excited by
     the jerk jumps at the G2 blend joins scales like 1/omega ~ 1/sqrt(E): for E x 100 the expected
     ratio is about 0.1; we require < 0.2 (and a visible correction at nominal stiffness). One grid
-    for both, with the exponential's squarings for the stiffer robot."""
+    for both (``GRID4``: quarter steps, the exponential's squarings for the stiffer robot)."""
     robot, path, _ = setup
     tf = 0.43
-    grid = default_grid(robot.replace(young=robot.young * 100.0), [tf], 0.1)
+    grid = GRID4
     errs = []
     for factor in (1.0, 100.0):
         r = robot.replace(young=robot.young * factor)
@@ -171,12 +182,14 @@ def test_torques_tend_to_rigid_inverse_dynamics_as_stiffness_grows(setup):
     assert errs[1] < 0.2 * errs[0], errs
 
 
+@pytest.mark.xdist_group("quartered-grid")
 def test_dt_convergence_one_combination(setup):
     """Quartering every step (four times as many frozen intervals and dwell steps as the default
     grid) changes every position, torque and energy metric by < 1 % (6 kg, trap_1_8, second-order
     model; the report's dt study over the 24 runs: <= 0.6 %)."""
     robot, path, tables = setup
-    g4 = GRID._replace(coarse=4 * GRID.coarse, dwell_steps=4 * GRID.dwell_steps)
+    g4 = GRID4
+    assert (g4.coarse, g4.fine, g4.dwell_steps) == (4 * GRID.coarse, GRID.fine, 4 * GRID.dwell_steps)
     m1 = metrics(_run(tables, path, "trap_1_8", 0.43, GRID, robot=robot))
     m4 = metrics(_run(tables, path, "trap_1_8", 0.43, g4, robot=robot))
     for k in ("max_torque_nm", "max_deflection_mm", "residual_pos_mm", "residual_vel", "dwell_residual_mm",
