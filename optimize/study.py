@@ -2,10 +2,11 @@
 
 ``optimize_design`` is the whole study for one or several payloads at a fixed motion time:
 
-1. the 12 paper combinations, simulated on every training model (``paper_sweep``), give the best
-   one on the nominal models (smallest dwell residual; for several payloads the smallest
-   worst-case ratio to each payload's best), the torque bound (the poly7-Lamé peak torque, per
-   model) and the objective's scales (the best combination's residuals);
+1. the 12 paper combinations, simulated on the nominal model of each payload (``paper_sweep``),
+   give the best one (smallest dwell residual; for several payloads the smallest worst-case ratio
+   to each payload's best) and the objective's scales (the best combination's residuals); poly7-Lamé
+   on every training model gives the torque bound of each (``_training_references``; with per-model
+   scales or the law-only optimizer the best combination runs on every training model too);
 2. a design (the blend parameters of each corner, by default of the G4 ``smoothstep`` family, and
    a shaped monotone motion law, ``jaxflex.designs``) is optimized by gradient (reverse mode
    through the workspace tables and the whole second-order rollout, optax Adam) on the training
@@ -60,7 +61,7 @@ from jaxflex.robot import Robot, check_cycle_reachable
 from jaxflex.simulate import Grid, check_grid
 from jaxflex.uncertainty import Box
 from jaxflex.sweep import default_grid
-from jaxflex.workspace import Workspace, build_workspace
+from jaxflex.workspace import Workspace, build_workspace, workspace_shapes
 
 from .baselines import ruckig_samples, shaper_profiles
 from .loop import OptimizerConfig, OptResult, compile_gradient_ahead, is_hot, minimize
@@ -394,6 +395,42 @@ def _paper_evaluations(cancelled, robot, cycle, payloads, tf, dwell, grid, confi
     return sets, grids, evaluators, evaluations
 
 
+def subset(models: ModelSet, idx) -> ModelSet:
+    """The models at the positions ``idx`` of ``models``, in that order."""
+    idx = [int(i) for i in idx]
+    return ModelSet(jax.tree_util.tree_map(lambda a: a[np.asarray(idx)], models.robots),
+                    tuple(models.ids[i] for i in idx))
+
+
+def _training_references(models: ModelSet, nominal, sweep: PaperSweep, blend: str, law: str, tf: float,
+                         dwell: float, grid: Grid, *, per_model: bool, progress: bool):
+    """What the study needs of the paper combinations on the training models beyond their nominal
+    ones (``sweep``: the 12 combinations on the nominal models, one per payload case): the torque
+    bound of every model (the poly7-Lamé peak torque) and the best combination's metrics (name ->
+    (K,)). Those metrics are simulated on every model only when ``per_model`` (per-model scales,
+    or the law-only optimizer, which trains on that evaluator); absolute scales use the nominal
+    model's values for its whole case, so they are taken from ``sweep``. Returns (bounds (K,), ref,
+    the best path's evaluator on every training model or None)."""
+    i, j = sweep.blends.index(blend), sweep.profiles.index(law)
+    position = {int(n): c for c, n in enumerate(nominal)}
+    case = np.asarray([position[int(n)] for n in nominal_of_each(models)])     # each model's payload case
+    if list(map(int, nominal)) == list(range(len(models.ids))):               # the sweep ran every model
+        lame_poly7 = sweep.metrics["max_torque_nm"][sweep.blends.index("lame"), sweep.profiles.index("poly7")]
+        return (np.asarray(lame_poly7), {k: np.asarray(v[i, j]) for k, v in sweep.metrics.items()},
+                sweep.evaluators[blend])
+    bar = Progress(f"paper references on {len(models.ids)} training models", enabled=progress)
+    lame = sweep.evaluators["lame"].path
+    with bar.waiting("poly7-Lamé (the torque bound) on every model"):
+        train_lame = LawEvaluator(models, lame, tf, dwell, grid)
+        bounds = np.asarray(train_lame(make_profile("poly7"))["max_torque_nm"])
+    if not per_model:
+        return bounds, {k: np.asarray(v[i, j])[case] for k, v in sweep.metrics.items()}, None
+    with bar.waiting(f"{blend}/{law} (the best combination) on every model"):
+        train = train_lame if blend == "lame" else LawEvaluator(models, sweep.evaluators[blend].path, tf, dwell,
+                                                                  grid)
+        return bounds, train(make_profile(law)), train
+
+
 def _workspaces(models: ModelSet, cycle: Cycle, progress: bool) -> Workspace:
     """The training models' workspace tables (``jaxflex.workspace``), with progress on stderr."""
     bar = Progress(f"workspace tables of {len(models.ids)} model(s)", enabled=progress)
@@ -430,28 +467,27 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
     weights = training_weights(train, len(payloads))
     workspaces = None
     if free_path:
-        # the design gradient compiles (about a minute cold) in the background during the paper sweep:
-        # its scales are only shapes until then
-        workspaces = _workspaces(models, cycle, progress)
+        # the design gradient compiles (about a minute cold) in the background from here on, during
+        # the workspace build and the paper sweep: its workspace tables and scales are only shapes
         x0 = init if init is not None else start_design(cycle, n_coef, c.blend)
         if steps > 0:
             f, args = design_objective(models, cycle, tf, dwell, grid, _abstract_scales(len(models.ids), weights),
-                                       workspaces, power=c.robust_power, order=c.law_order, blend=c.blend)
+                                       workspace_shapes(models.robots, cycle), power=c.robust_power,
+                                       order=c.law_order, blend=c.blend)
             compile_gradient_ahead(encode(cycle, x0), args, f=f, hot=is_hot(steps))
-    sweep = paper_sweep(models, cycle, tf, dwell, grid, progress=progress)
+        workspaces = _workspaces(models, cycle, progress)
     nominal = nominal_indices(models, payloads)
-    paper = {k: v[..., nominal] for k, v in sweep.metrics.items()}                 # (B, P, C)
+    sweep = paper_sweep(subset(models, nominal), cycle, tf, dwell, grid, progress=progress)
+    paper = sweep.metrics                                                       # (B, P, C)
     i, j = best_combination(paper["dwell_residual_mm"])
     blend, law = sweep.blends[i], sweep.profiles[j]
     if progress:
         print(f"best paper combination at tf = {tf:g} s for {list(payloads)} kg: {blend} / {law}", flush=True)
     paths = {"paper": sweep.evaluators[blend].path}
-    i_lame, j_poly7 = sweep.blends.index("lame"), sweep.profiles.index("poly7")
-    bounds = sweep.metrics["max_torque_nm"][i_lame, j_poly7]                 # per training model (K,)
+    bounds, ref, train_paper = _training_references(models, nominal, sweep, blend, law, tf, dwell, grid,
+                                                    per_model=not (c.absolute and free_path), progress=progress)
     torque_bound = bounds[nominal]
-    ref = {k: v[i, j] for k, v in sweep.metrics.items()}
     scales = scales_from_metrics(ref, bounds, weights, models if c.absolute else None)
-    train_paper = sweep.evaluators[blend]
     label = f"{'design' if free_path else 'law'} tf={tf:g}"
     freqs = tuple(place_first_mode_hz(robot.replace(payload=m), cycle) for m in payloads)
     # baselines on the best paper path: the best law, its shaped versions (first payload's mode), Ruckig
