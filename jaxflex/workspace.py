@@ -137,20 +137,6 @@ def build_workspace(robot: Robot, cycle: Cycle, spacing: float = 0.005) -> Works
                        step=jnp.broadcast_to(ws.step, (k, 2)))
 
 
-def workspace_shapes(robot: Robot, cycle: Cycle, spacing: float = 0.005) -> Workspace:
-    """The shapes and dtypes of ``build_workspace(robot, cycle, spacing)`` (``jax.ShapeDtypeStruct``
-    leaves) without building it: a trace of one grid point's basis, for compiling a program that
-    takes the workspace (the design optimizer's gradient) while the tables are being built."""
-    nu, nv = grid_shape(cycle, spacing)
-    stacked = np.ndim(robot.payload) > 0
-    one = jax.tree_util.tree_map(lambda a: a[0], robot) if stacked else robot
-    lead = (int(np.shape(robot.payload)[0]),) if stacked else ()
-    basis = jax.eval_shape(_basis_at, one, jax.ShapeDtypeStruct((2,), jnp.float64))
-    values = {k: jax.ShapeDtypeStruct(lead + (nu, nv) + v.shape, v.dtype) for k, v in basis.items()}
-    vec = lambda *shape: jax.ShapeDtypeStruct(lead + shape, jnp.float64)
-    return Workspace(values=values, origin=vec(2), axes=vec(2, 2), step=vec(2))
-
-
 def _weights(t):
     """Cubic Lagrange weights (4,) at t in [0, 3] for nodes 0..3."""
     return jnp.stack([-(t - 1) * (t - 2) * (t - 3) / 6, t * (t - 2) * (t - 3) / 2,

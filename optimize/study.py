@@ -61,7 +61,7 @@ from jaxflex.robot import Robot, check_cycle_reachable
 from jaxflex.simulate import Grid, check_grid
 from jaxflex.uncertainty import Box
 from jaxflex.sweep import default_grid
-from jaxflex.workspace import Workspace, build_workspace, workspace_shapes
+from jaxflex.workspace import Workspace, build_workspace
 
 from .baselines import ruckig_samples, shaper_profiles
 from .loop import OptimizerConfig, OptResult, compile_gradient_ahead, is_hot, minimize
@@ -467,15 +467,14 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
     weights = training_weights(train, len(payloads))
     workspaces = None
     if free_path:
-        # the design gradient compiles (about a minute cold) in the background from here on, during
-        # the workspace build and the paper sweep: its workspace tables and scales are only shapes
+        # the design gradient compiles (about a minute cold) in the background during the paper sweep:
+        # its scales are only shapes until then
+        workspaces = _workspaces(models, cycle, progress)
         x0 = init if init is not None else start_design(cycle, n_coef, c.blend)
         if steps > 0:
             f, args = design_objective(models, cycle, tf, dwell, grid, _abstract_scales(len(models.ids), weights),
-                                       workspace_shapes(models.robots, cycle), power=c.robust_power,
-                                       order=c.law_order, blend=c.blend)
+                                       workspaces, power=c.robust_power, order=c.law_order, blend=c.blend)
             compile_gradient_ahead(encode(cycle, x0), args, f=f, hot=is_hot(steps))
-        workspaces = _workspaces(models, cycle, progress)
     nominal = nominal_indices(models, payloads)
     sweep = paper_sweep(subset(models, nominal), cycle, tf, dwell, grid, progress=progress)
     paper = sweep.metrics                                                       # (B, P, C)

@@ -55,22 +55,6 @@ def _tables(cycle, d, e, fn):
     return fn(make_path(cycle, "lame", d, e, 3.5, 0.02, 0.04, 2.5)).values._asdict()
 
 
-def test_workspace_shapes_are_those_of_the_built_workspace(setup):
-    """``workspace_shapes`` (what the design gradient compiles for while the tables are built) has
-    the tree, shapes, dtypes and weak types of ``build_workspace``'s result, for one robot and a
-    stack of two (otherwise the optimizer would compile its gradient a second time)."""
-    from jaxflex.compiled import _aval
-    from jaxflex.trees import stack
-    from jaxflex.workspace import workspace_shapes
-
-    robot, cycle, ws = setup
-    sig = lambda tree: (jax.tree_util.tree_structure(tree), [_aval(x) for x in jax.tree_util.tree_leaves(tree)])
-    assert sig(workspace_shapes(robot, cycle)) == sig(ws)
-    robots = stack([robot, robot.replace(payload=5.0)], dtype=float)
-    k2 = jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (2,) + a.shape), ws)     # build_workspace's stacking
-    assert sig(workspace_shapes(robots, cycle)) == sig(k2)
-
-
 def test_workspace_tables_and_their_blend_derivatives_match_the_exact_tables(setup):
     """An asymmetric Lamé design (corners d, e, n = 15/60/3.5 and 20/40/2.5 mm): every field within
     1e-5 of its range (bicubic interpolation on the 5 mm grid: measured 5e-7); the derivatives w.r.t.
