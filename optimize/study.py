@@ -412,8 +412,6 @@ def _training_references(models: ModelSet, nominal, sweep: PaperSweep, blend: st
     model's values for its whole case, so they are taken from ``sweep``. Returns (bounds (K,), ref,
     the best path's evaluator on every training model or None)."""
     i, j = sweep.blends.index(blend), sweep.profiles.index(law)
-    position = {int(n): c for c, n in enumerate(nominal)}
-    case = np.asarray([position[int(n)] for n in nominal_of_each(models)])     # each model's payload case
     if list(map(int, nominal)) == list(range(len(models.ids))):               # the sweep ran every model
         lame_poly7 = sweep.metrics["max_torque_nm"][sweep.blends.index("lame"), sweep.profiles.index("poly7")]
         return (np.asarray(lame_poly7), {k: np.asarray(v[i, j]) for k, v in sweep.metrics.items()},
@@ -424,6 +422,8 @@ def _training_references(models: ModelSet, nominal, sweep: PaperSweep, blend: st
         train_lame = LawEvaluator(models, lame, tf, dwell, grid)
         bounds = np.asarray(train_lame(make_profile("poly7"))["max_torque_nm"])
     if not per_model:
+        position = {int(n): c for c, n in enumerate(nominal)}
+        case = np.asarray([position[int(n)] for n in nominal_of_each(models)])     # each model's payload case
         return bounds, {k: np.asarray(v[i, j])[case] for k, v in sweep.metrics.items()}, None
     with bar.waiting(f"{blend}/{law} (the best combination) on every model"):
         train = train_lame if blend == "lame" else LawEvaluator(models, sweep.evaluators[blend].path, tf, dwell,
@@ -461,8 +461,8 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
         shaped(init.coef)
     grid = grid or default_grid(robot, [tf], dwell)
     check_grid(grid)
-    # the paper sweep on the training models: it gives the best combination (nominal models), the
-    # torque bounds and the objective's scales (every training model) with one rollout program
+    # the training models; the paper combinations on their nominal models give the best combination
+    # and the scales, poly7-Lamé on every one the torque bounds (``_training_references``)
     models = training_models(robot, payloads, train, box=c.box, points=c.box_points, cycle=cycle)
     weights = training_weights(train, len(payloads))
     workspaces = None
