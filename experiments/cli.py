@@ -110,7 +110,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="optimize the motion law only, on the best paper combination's path")
     p.add_argument("--verify", action="store_true",
                    help="re-simulate the best paper combination and the optimized trajectory at a quarter "
-                        "step and with the full nonlinear model (RK4, 1e-5 s; a few minutes)")
+                        "step and with the full nonlinear model (exponential integrator, 2e-5 s; a minute or two)")
     p.add_argument("--out", metavar="DIR",
                    help="write optimize.json, trajectory.csv (t,x,y,q1,q2 at 10 kHz), figures and a "
                         "checkpoint to DIR; rerunning with the same DIR resumes")

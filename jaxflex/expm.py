@@ -40,3 +40,21 @@ def expm_fixed(a, squarings: int):
     for _ in range(squarings):
         p = p @ p
     return p
+
+
+
+def phi_times(a, vectors, squarings: int):
+    """sum_k phi_k(a) v_k over the vectors v_1 .. v_p (each (n,)), for a (n, n), where
+    phi_0(z) = e^z, phi_{k+1}(z) = (phi_k(z) - 1/k!) / z (the functions of exponential integrators).
+
+    One exponential of the (n + p)-augmented matrix [[a, W], [0, N]], W = [v_p .. v_1] and N the
+    p x p shift, whose last column holds the sum (Al-Mohy & Higham 2011, Theorem 2.1). W is scaled
+    inside to unit column sums, which keeps the augmented matrix's 1-norm at most max(||a||_1, 2):
+    choose ``squarings`` for that bound (``squarings_for``)."""
+    n, p = a.shape[-1], len(vectors)
+    w = jnp.stack(vectors[::-1], axis=-1)
+    size = jnp.max(jnp.sum(jnp.abs(w), axis=0))
+    scale = 1.0 / jnp.where(size > 0, size, 1.0)
+    top = jnp.concatenate([a, scale * w], axis=-1)
+    bottom = jnp.concatenate([jnp.zeros((p, n)), jnp.eye(p, k=1)], axis=-1)
+    return expm_fixed(jnp.concatenate([top, bottom], axis=-2), squarings)[:n, -1] / scale

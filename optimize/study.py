@@ -662,15 +662,18 @@ def _dwell(aux):
 
 
 def verify(robot: Robot, cycle: Cycle, trajectories: dict, payload: float, tf: float, *, dwell: float = 0.1,
-           rk4_dt: float = 1e-5) -> dict:
+           method: str = "exprb3", full_dt: float | None = None) -> dict:
     """Independent check of the residual claims: every trajectory (name -> (Path, Profile)) is
     re-simulated with the fast model at the default step, at a quarter of it, and with the full
-    nonlinear model by RK4 at ``rk4_dt`` [s]. Returns name -> {method: dwell residual [mm]}."""
+    nonlinear model (``jaxflex.reference.reference_rollout`` with ``method`` at ``full_dt`` [s], its
+    default step if None). Returns name -> {method: dwell residual [mm]}."""
     from jaxflex.metrics import metrics
-    from jaxflex.reference import reference_rollout
+    from jaxflex.reference import DEFAULT_DT, METHODS, reference_rollout
 
     payload = checks.nonnegative("payload", payload, "kg")
-    tf, dwell, rk4_dt = (checks.positive(k, v, "s") for k, v in (("tf", tf), ("dwell", dwell), ("rk4_dt", rk4_dt)))
+    checks.one_of("full-model method", method, METHODS)
+    full_dt = DEFAULT_DT[method] if full_dt is None else full_dt
+    tf, dwell, full_dt = (checks.positive(k, v, "s") for k, v in (("tf", tf), ("dwell", dwell), ("full_dt", full_dt)))
     r = robot.replace(payload=payload)
     g = default_grid(robot, [tf], dwell)
     fine = Grid(coarse=4 * g.coarse, fine=g.fine, dwell_steps=4 * g.dwell_steps, squarings=g.squarings)
@@ -681,7 +684,7 @@ def verify(robot: Robot, cycle: Cycle, trajectories: dict, payload: float, tf: f
         for label, evaluator in (("fast", ev), ("fast dt/4", ev.with_grid(fine))):
             out[name][label] = float(evaluator(law)["dwell_residual_mm"][0])
     paths, laws = zip(*trajectories.values())
-    ref = jax.vmap(metrics)(reference_rollout(r, list(paths), list(laws), tf, dwell, dt=rk4_dt))
+    ref = jax.vmap(metrics)(reference_rollout(r, list(paths), list(laws), tf, dwell, dt=full_dt, method=method))
     for i, name in enumerate(trajectories):
-        out[name][f"full model RK4 {rk4_dt:g} s"] = float(ref["dwell_residual_mm"][i])
+        out[name][f"full model {method} {full_dt:g} s"] = float(ref["dwell_residual_mm"][i])
     return out
