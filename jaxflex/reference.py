@@ -148,6 +148,7 @@ DEFAULT_DT = {"exprb3": 2e-5, "rk4": 1e-5}    # [s]
 METHOD_NAMES = {"exprb3": "exponential integrator, order 3", "rk4": "RK4"}
 CHUNK = 1024     # steps per call of the stepping program: one program for every run length (progress, ETA)
 WINDOW = 32      # exprb3: steps per Jacobian of the field (a multiple of it divides CHUNK)
+MIN_SQUARINGS = 5   # exprb3: the matrix functions' least squarings (20 us steps need 4-5; each costs a small product)
 
 
 def reference_rollout(robot: Robot, path: Path | Sequence[Path], profile: Profile | Sequence[Profile], tf: float,
@@ -190,25 +191,29 @@ def reference_rollout(robot: Robot, path: Path | Sequence[Path], profile: Profil
     paths = [path] * len(profiles) if isinstance(path, Path) else list(path)
     if len(paths) != len(profiles):
         raise ValueError(f"{len(paths)} paths for {len(profiles)} motion laws: give one path or one per law")
-    tfa = jnp.asarray(tf)
-    k = np.arange(n)
-    samples = [tuple(_joint_samples(robot, pth, p, tfa, jnp.asarray(eta), side=side)
-                     for eta, side in ((k / n, 1), ((k + 0.5) / n, 1), ((k + 1) / n, -1)))
-               for pth, p in zip(paths, profiles)]
     payload = np.asarray(robot.payload, dtype=float)
-    # one flat batch of runs (law-major, then payload), every input repeated per run
-    runs = [(float(m), smp) for smp in samples for m in np.atleast_1d(payload)]
-    masses = jnp.asarray([m for m, _ in runs])
-    samples = trees.stack([smp for _, smp in runs])
-    out = _integrate(robot, masses, samples, tf, dwell, n, nd, method, progress)
+    bar = Progress(f"full model ({METHOD_NAMES[method]}, h = {tf / n * 1e6:.3g} us, "
+                   f"{len(profiles) * payload.size} runs)", total=-(-(n + nd) // CHUNK), unit="chunk",
+                   enabled=progress)
+    with bar:
+        with bar.waiting("the motors' motion at every step"):
+            tfa, k = jnp.asarray(tf), np.arange(n)
+            samples = [tuple(_joint_samples(robot, pth, p, tfa, jnp.asarray(eta), side=side)
+                             for eta, side in ((k / n, 1), ((k + 0.5) / n, 1), ((k + 1) / n, -1)))
+                       for pth, p in zip(paths, profiles)]
+        # one flat batch of runs (law-major, then payload), every input repeated per run
+        runs = [(float(m), smp) for smp in samples for m in np.atleast_1d(payload)]
+        masses = jnp.asarray([m for m, _ in runs])
+        out = _integrate(robot, masses, trees.stack([smp for _, smp in runs]), tf, dwell, n, nd, method, bar)
     shape = (len(profiles),) + payload.shape
     out = jax.tree_util.tree_map(lambda a: a.reshape(shape + a.shape[1:]), out)
     return jax.tree_util.tree_map(lambda a: a[0], out) if single else out
 
 
-def _integrate(robot, masses, samples, tf, dwell, n, nd, method, progress):
+def _integrate(robot, masses, samples, tf, dwell, n, nd, method, bar):
     """The batch of runs (leading axis B of ``masses`` [kg] and ``samples``): start, the steps of
-    ``method`` in calls of CHUNK steps (progress on stderr with an ETA), the outputs at the ends."""
+    ``method`` in calls of CHUNK steps (on the progress ``bar``, one unit per call), the outputs at
+    the ends."""
     h, hd = tf / n, dwell / nd
     chunks = -(-(n + nd) // CHUNK)
     total = chunks * CHUNK
@@ -221,29 +226,27 @@ def _integrate(robot, masses, samples, tf, dwell, n, nd, method, progress):
     hold = jnp.stack([qa_place, jnp.zeros_like(qa_place), jnp.zeros_like(qa_place)], axis=1)
     motor = jnp.concatenate([motion, jnp.broadcast_to(hold[:, None, None], (len(masses), total - n, 3, 3, 2))], axis=1)
     steps = jnp.asarray(np.concatenate([np.full(n, h), np.full(nd, hd), np.zeros(total - n - nd)]))
-    bar = Progress(f"full model ({METHOD_NAMES[method]}, h = {h * 1e6:.3g} us, {masses.shape[0]} runs)", total=chunks,
-                   unit="chunk", enabled=progress)
-    with bar:
-        with bar.waiting("the start: static equilibria at the pick and place poses"):
-            x, q_star, e_static, omega, norm = _start(robot, masses, starts[0][:, 0], qa_place, max(h, hd),
-                                                      exponential=method == "exprb3")
-            # twice the start's norm: the pose and the deflection change ||h J|| by far less
-            squarings = squarings_for(2.0 * max(float(jnp.max(norm)), 1.0)) if method == "exprb3" else 0
-        x_tf, ys = None, []
-        for c in range(chunks):
-            part = slice(c * CHUNK, (c + 1) * CHUNK)
-            with bar.waiting("compiling the step, first chunk") if c == 0 else contextlib.nullcontext():
-                x_next, (states, y) = jax.block_until_ready(
-                    _advance(robot, masses, omega, x, steps[part], motor[:, part], method=method,
-                             squarings=squarings))
-            if c * CHUNK <= n < (c + 1) * CHUNK:
-                x_tf = states[:, n - c * CHUNK]
-            x = x_next
-            ys.append(y)
-            bar.update(c + 1)
-        with bar.waiting("outputs at tf and at the end of the dwell"):
-            end = jnp.stack([a[:, -1] for a in ends], axis=1)
-            y_ends, energy, low = jax.block_until_ready(_ends(robot, masses, end, q_star, x_tf, x))
+    with bar.waiting("the start: static equilibria at the pick and place poses"):
+        x, q_star, e_static, omega, norm = _start(robot, masses, starts[0][:, 0], qa_place, max(h, hd),
+                                                  exponential=method == "exprb3")
+        # for twice the start's norm (the pose and the deflection change ||h J|| by far less), and
+        # at least MIN_SQUARINGS, so that most calls share one program
+        squarings = max(MIN_SQUARINGS, squarings_for(2.0 * float(jnp.max(norm)))) if method == "exprb3" else 0
+    x_tf, ys = None, []
+    for c in range(chunks):
+        part = slice(c * CHUNK, (c + 1) * CHUNK)
+        with bar.waiting("the first chunk (compiles the step)") if c == 0 else contextlib.nullcontext():
+            x_next, (states, y) = jax.block_until_ready(
+                _advance(robot, masses, omega, x, steps[part], motor[:, part], method=method,
+                         squarings=squarings))
+        if c * CHUNK <= n < (c + 1) * CHUNK:
+            x_tf = states[:, n - c * CHUNK]
+        x = x_next
+        ys.append(y)
+        bar.update(c + 1)
+    with bar.waiting("outputs at tf and at the end of the dwell"):
+        end = jnp.stack([a[:, -1] for a in ends], axis=1)
+        y_ends, energy, low = jax.block_until_ready(_ends(robot, masses, end, q_star, x_tf, x))
     ys = jnp.concatenate(ys, axis=1)
     ys_motion = jnp.concatenate([ys[:, :n], y_ends[:, :1]], axis=1)
     yd = jnp.concatenate([ys[:, n:n + nd], y_ends[:, 1:]], axis=1)
