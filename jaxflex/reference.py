@@ -32,6 +32,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxflex import checks
 from jaxflex import model as mdl
 from jaxflex import trees
 from jaxflex.expm import phi_times, squarings_for
@@ -175,17 +176,15 @@ def reference_rollout(robot: Robot, path: Path | Sequence[Path], profile: Profil
     programs depend on the number of runs and the robot's structure, not on tf, dt or the
     trajectories, so later calls in a process reuse them.
     """
-    if method not in METHODS:
-        raise ValueError(f"unknown method {method!r}; choose one of {', '.join(METHODS)}")
-    dt = DEFAULT_DT[method] if dt is None else dt
-    tf, dwell, dt = float(tf), float(dwell), float(dt)
-    if not (tf > 0 and dwell > 0 and dt > 0):
-        raise ValueError(f"tf, dwell and dt must be > 0 s, got {tf}, {dwell}, {dt}")
+    checks.one_of("full-model method", method, METHODS)
+    tf, dwell = checks.positive("tf", tf, "s"), checks.positive("dwell", dwell, "s")
+    dt = checks.positive("dt", DEFAULT_DT[method] if dt is None else dt, "s")
+    dwell_dt = dt if dwell_dt is None else checks.positive("dwell_dt", dwell_dt, "s")
     if method == "rk4" and dt > 2e-5:
         raise ValueError(f"RK4 reference step dt={dt} s is above its stability limit (~2.4e-5 s for "
                          "the 18.6 kHz axial mode of the default robot); use dt <= 2e-5 s or method='exprb3'")
     n = 8 * max(1, int(np.ceil(tf / dt / 8)))
-    nd = max(1, int(np.ceil(dwell / (dwell_dt or dt))))
+    nd = max(1, int(np.ceil(dwell / dwell_dt)))
     single = isinstance(profile, Profile)
     profiles = [profile] if single else list(profile)
     paths = [path] * len(profiles) if isinstance(path, Path) else list(path)

@@ -179,3 +179,25 @@ def test_every_entry_point_rejects_bad_values_naming_them_before_compiling(name,
                 "tf_ref": "tf", "tfs": "tfs", "blend": "blend"}.get(arg, arg)
     assert expected in text, (name, arg, value, text)
     assert compilations[0] == 0, f"{name}({arg}={value!r}) compiled {compilations[0]} programs before rejecting it"
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    (dict(method="rk45"), r"unknown full-model method 'rk45'; choose one of exprb3, rk4"),
+    (dict(method="rk4", dt=5e-5), r"RK4 reference step dt=5e-05 s is above its stability limit"),
+    (dict(tf=float("inf")), r"tf must be finite \[s\]"),
+    (dict(dwell=0.0), r"dwell must be > 0 \[s\]"),
+    (dict(dt=-1e-5), r"dt must be > 0 \[s\]"),
+    (dict(dwell_dt=float("nan")), r"dwell_dt must be finite \[s\]"),
+])
+def test_bad_full_model_arguments(kwargs, match):
+    """The full model's reference rollout rejects bad options before it compiles anything."""
+    from jaxflex import reference
+    from jaxflex.path import make_path
+
+    args = dict(tf=0.43, dwell=0.1) | kwargs
+    programs = (reference._start, reference._advance, reference._ends, reference._joint_samples)
+    before = [p._cache_size() for p in programs]
+    with pytest.raises(ValueError, match=match):
+        reference.reference_rollout(ROBOT, make_path(CYCLE, "lame", 0.025), make_profile("poly7"),
+                                    progress=False, **args)
+    assert [p._cache_size() for p in programs] == before
