@@ -102,6 +102,7 @@ def reference_markdown(study: dict) -> str:
             rel = [100 * (a / b - 1) for a, b in zip(v["fast"], v["full"])]
             rows.append([m] + [f"{x:+.3f}" for x in rel])
         parts.append(f"Fast minus full, relative [%], {c['payload']:g} kg, tf = {c['tf']:g} s, Lamé; full model "
-                     f"by {METHOD_NAMES[study.get('method', 'rk4')]}, h = {study['dt'] * 1e6:g} us ({c['reference_s']:.0f} s):\n\n"
+                     f"by {METHOD_NAMES[study.get('method', 'rk4')]}, h = {study['dt'] * 1e6:g} us "
+                     f"({c['reference_s']:.0f} s):\n\n"
                      + table(["metric"] + c["profiles"], rows))
     return "\n\n".join(parts)

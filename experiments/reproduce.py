@@ -258,8 +258,8 @@ def _optimization_section(res: dict, out: Path) -> str:
              "box (E +-5 %, payload +-10 %, damping ratio 0-1 %, link lengths +-0.5 mm, rotor inertia "
              "+-10 %; `box worst` and `box p95` columns, and the figure of residual against the first-mode "
              "frequency error); the verification re-simulates the best paper combination and the optimized "
-             "design at a quarter step and with the full nonlinear model (exponential integrator, 20 us). Why this family: with Lamé "
-             "corners (G2) the same robust objective left 30-36 um at the worst perturbed model, the "
+             "design at a quarter step and with the full nonlinear model (exponential integrator, 20 us). "
+             "Why this family: with Lamé corners (G2) the same robust objective left 30-36 um at the worst perturbed model, the "
              "smoothstep family about 1.2 um (`StudyConfig` docstring).", ""]
     if res.get("quick"):
         lines += ["(`--quick`: two optimizer steps on the nominal model, 4 random models of the box and the "

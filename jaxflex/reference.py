@@ -223,7 +223,8 @@ def _integrate(robot, masses, samples, tf, dwell, n, nd, method, bar):
     motion = jnp.stack([jnp.stack(v, axis=2) for v in (starts, mids, ends)], axis=2)
     qa_place = ends[0][:, -1]
     hold = jnp.stack([qa_place, jnp.zeros_like(qa_place), jnp.zeros_like(qa_place)], axis=1)
-    motor = jnp.concatenate([motion, jnp.broadcast_to(hold[:, None, None], (len(masses), total - n, 3, 3, 2))], axis=1)
+    motor = jnp.concatenate([motion, jnp.broadcast_to(hold[:, None, None], (len(masses), total - n, 3, 3, 2))],
+                            axis=1)
     steps = jnp.asarray(np.concatenate([np.full(n, h), np.full(nd, hd), np.zeros(total - n - nd)]))
     with bar.waiting("the start: static equilibria at the pick and place poses"):
         x, q_star, e_static, omega, norm = _start(robot, masses, starts[0][:, 0], qa_place, max(h, hd),
@@ -251,7 +252,8 @@ def _integrate(robot, masses, samples, tf, dwell, n, nd, method, bar):
     yd = jnp.concatenate([ys[:, n:n + nd], y_ends[:, 1:]], axis=1)
     batch = lambda a: jnp.broadcast_to(jnp.asarray(a), (len(masses),) + jnp.shape(a))
     return Series(t=batch(jnp.arange(n + 1, dtype=float) * h), e=ys_motion[:, :, 0], ed=ys_motion[:, :, 1],
-                  edd=ys_motion[:, :, 2], tau=ys_motion[:, :, 3], t_dwell=batch(tf + jnp.arange(nd + 1, dtype=float) * hd),
+                  edd=ys_motion[:, :, 2], tau=ys_motion[:, :, 3],
+                  t_dwell=batch(tf + jnp.arange(nd + 1, dtype=float) * hd),
                   e_dwell=yd[:, :, 0], ed_dwell=yd[:, :, 1], edd_dwell=yd[:, :, 2], tau_dwell=yd[:, :, 3],
                   e_static=e_static, energy_tf=energy[:, 0], energy_dwell=energy, state_tf=x_tf, dt=batch(h),
                   dt_dwell=batch(hd), edd_tf_low=low)
@@ -307,7 +309,8 @@ def _advance(robot, masses, omega, x, steps, motor, *, method, squarings):
             hw, mw = inp
             return jax.lax.scan(step(_field_jacobian(r, mw[0, 0], x)), x, (hw, mw))
 
-        x, (states, y) = jax.lax.scan(window, x, (steps.reshape(-1, WINDOW), motor.reshape((-1, WINDOW) + motor.shape[1:])))
+        windows = (steps.reshape(-1, WINDOW), motor.reshape((-1, WINDOW) + motor.shape[1:]))
+        x, (states, y) = jax.lax.scan(window, x, windows)
         return x, (states.reshape((-1,) + states.shape[2:]), y.reshape((-1,) + y.shape[2:]))
 
     return jax.vmap(run)(masses, omega, x, motor)
