@@ -259,8 +259,8 @@ def _optimization_section(res: dict, out: Path) -> str:
              "+-10 %; `box worst` and `box p95` columns, and the figure of residual against the first-mode "
              "frequency error); the verification re-simulates the best paper combination and the optimized "
              "design at a quarter step and with the full nonlinear model (exponential integrator, 20 us). "
-             "Why this family: with Lamé corners (G2) the same robust objective left 30-36 um at the worst perturbed model, the "
-             "smoothstep family about 1.2 um (`StudyConfig` docstring).", ""]
+             "Why this family: with Lamé corners (G2) the same robust objective left 30-36 um at the worst "
+             "perturbed model, the smoothstep family about 1.2 um (`StudyConfig` docstring).", ""]
     if res.get("quick"):
         lines += ["(`--quick`: two optimizer steps on the nominal model, 4 random models of the box and the "
                   "richer model with one extra mode per kind, the 6 kg case only (neither the 0.1 kg case nor the "
