@@ -76,16 +76,13 @@ def _rk4(robot, h, x, stages):
     (q_a, q_a', q_a'') at the start, middle and end of the step.
 
     Returns the new state and (q_e'', tau) at the start of the step (the first stage)."""
-    ne = x.shape[0] // 2
     motor = stages[np.asarray(_RK4_MOTOR)]
 
     def stage(carry, inp):
         k_prev, acc = carry
-        a, b, (qa, qad, qadd) = inp
-        xx = x + a * h * k_prev
-        qedd, tau = mdl.inverse_dynamics(robot, qa, xx[:ne], qad, xx[ne:], qadd)
-        k = jnp.concatenate([xx[ne:], qedd])
-        return (k, acc + b * k), (qedd, tau)
+        a, b, mot = inp
+        k, out = _field(robot, mot, x + a * h * k_prev)
+        return (k, acc + b * k), out
 
     zero = jnp.zeros_like(x)
     (_, acc), (qedd, tau) = jax.lax.scan(stage, (zero, zero), (jnp.asarray(_RK4_A), jnp.asarray(_RK4_B), motor))
@@ -103,6 +100,14 @@ def _field(robot, motor, u):
 def _field_jacobian(robot, motor, u):
     """dF/du (2 ne, 2 ne) of ``_field`` by forward-mode autodiff."""
     return jax.jacfwd(lambda v: _field(robot, motor, v)[0])(u)
+
+
+def _velocity_scaling(jac, omega):
+    """The state scaling s = [1 .. 1, 1/omega .. 1/omega] (2 ne,) and diag(s) J diag(s)^-1: with
+    omega [rad/s] the scale of the elastic frequencies, the Jacobian's blocks are all about omega."""
+    ne = jac.shape[0] // 2
+    s = jnp.concatenate([jnp.ones(ne), jnp.full(ne, 1.0 / omega)])
+    return s, jac * s[:, None] / s[None, :]
 
 
 def _exprb3(robot, h, x, stages, omega, squarings, jac):
@@ -124,9 +129,8 @@ def _exprb3(robot, h, x, stages, omega, squarings, jac):
     scaled by 1/omega [rad/s] (the scale of the elastic frequencies) inside the matrix functions, so
     that ||hJ|| is about h omega and not h omega^2; ``squarings`` is chosen for that norm. Returns the new
     state and (q_e'', tau) at the start of the step."""
-    ne = x.shape[0] // 2
-    s = jnp.concatenate([jnp.ones(ne), jnp.full(ne, 1.0 / omega)])
-    a = h * jac * s[:, None] / s[None, :]
+    s, scaled = _velocity_scaling(jac, omega)
+    a = h * scaled
     phi = lambda *v: phi_times(a, [h * s * vi for vi in v], squarings) / s
     rest = lambda motor, u: _field(robot, motor, u)[0] - jac @ u
     f0, out0 = _field(robot, stages[0], x)
@@ -279,8 +283,7 @@ def _start(robot, masses, qa_pick, qa_place, h, exponential):
         # the frequency scale sqrt(||dq_e''/dq_e||_1), at least the highest elastic frequency: it
         # balances the blocks h omega and h ||dq_e''/dq_e|| / omega of the scaled Jacobian
         omega = jnp.sqrt(jnp.max(jnp.sum(jnp.abs(jac[ne:, :ne]), axis=0)))
-        sc = jnp.concatenate([jnp.ones(ne), jnp.full(ne, 1.0 / omega)])
-        return x0, q_star, e_static, omega, h * jnp.max(jnp.sum(jnp.abs(jac * sc[:, None] / sc[None, :]), axis=0))
+        return x0, q_star, e_static, omega, h * jnp.max(jnp.sum(jnp.abs(_velocity_scaling(jac, omega)[1]), axis=0))
     return jax.vmap(one)(masses, qa_pick, qa_place)
 
 
@@ -328,8 +331,7 @@ def _ends(robot, masses, end, q_star, x_tf, x_end):
         ne = q_star.shape[0]
 
         def outputs_at(motor, x):
-            qedd, tau = mdl.inverse_dynamics(r, motor[0], x[:ne], motor[1], x[ne:], motor[2])
-            return _outputs(r, *motor, x, qedd, tau)
+            return _outputs(r, *motor, x, *_field(r, motor, x)[1])
 
         # the left limit at tf (motors still decelerating) and the end of the dwell
         y = jax.vmap(outputs_at)(jnp.stack([end, jnp.stack([qa_place, zero, zero])]), jnp.stack([x_tf, x_end]))
