@@ -112,6 +112,27 @@ def combine(terms: dict, scales: Scales, torque_weight: float = TORQUE_WEIGHT, p
     return log_mean + penalty
 
 
+VMAP_MODELS = 2     # objectives over at most this many models vmap them; more go one at a time
+
+
+def _count(batched) -> int:
+    return jax.tree_util.tree_leaves(batched)[0].shape[0]
+
+
+def over_models(fn, *batched):
+    """fn(*one model's slices) over the leading (model) axis K of ``batched`` (pytrees; None allowed).
+
+    Up to ``VMAP_MODELS`` models are vmapped. More run one at a time (``lax.map``) with ``fn``
+    rematerialized in reverse mode (``jax.checkpoint``): the backward pass then holds one model's
+    rollout at a time instead of all K. The design gradient on the 9 box models: 0.24 GiB of XLA
+    temp memory against 1.84, 1.55 s per step against 1.64, 20 s longer to compile (2 cores); the
+    same values to round-off (4e-13)."""
+    if _count(batched) <= VMAP_MODELS:
+        return jax.vmap(fn)(*batched)
+    remat = jax.checkpoint(fn)
+    return jax.lax.map(lambda xs: remat(*xs), batched)
+
+
 def objective_terms(params: Params, robots: Robot, cycle: Cycle, tf, dwell, grid: Grid, *,
                     blend: str = "lame", order: int = 3, second_order: bool = True,
                     workspaces: Workspace | None = None) -> dict:
@@ -121,7 +142,7 @@ def objective_terms(params: Params, robots: Robot, cycle: Cycle, tf, dwell, grid
     x = decode(cycle, params)
     one = lambda robot, ws: _terms(design_rollout(robot, cycle, x, tf, dwell, grid, blend=blend, order=order,
                                                   second_order=second_order, workspace=ws))
-    return jax.vmap(one)(robots, workspaces)
+    return over_models(one, robots, workspaces)
 
 
 def objective(params: Params, robots: Robot, cycle: Cycle, tf, dwell, grid: Grid, scales: Scales, *,
@@ -147,5 +168,5 @@ def law_objective(coef, tables, length, tf, dwell, grid: Grid, scales: Scales, *
     models stacked (``stack_robots``) for the second-order fast model, None for the first-order one.
     Cheaper than ``objective``: the tables do not depend on the law."""
     samples = motion_samples(length, shaped(coef, order), tf, grid)
-    t = jax.vmap(lambda tab, robot: _terms(rollout(tab, samples, tf, dwell, grid, robot)))(tables, robots)
+    t = over_models(lambda tab, robot: _terms(rollout(tab, samples, tf, dwell, grid, robot)), tables, robots)
     return combine(t, scales, torque_weight, power), t

@@ -19,6 +19,42 @@ def _central(f, x, i, h):
     return (f(x + e) - f(x - e)) / (2 * h)
 
 
+def test_models_one_at_a_time_give_the_vmapped_values_and_gradients(monkeypatch):
+    """``objective.over_models`` runs more than ``VMAP_MODELS`` models one at a time (lax.map) with the
+    per-model function rematerialized in the backward pass. That is a memory layout, not a change of
+    the objective: on a per-model function with a recurrence (a scan, like the rollout), a closed-over
+    differentiated input (like the law's samples) and a None argument (the first-order model), the
+    value and the reverse-mode gradient equal the vmapped ones to round-off (1e-12 relative)."""
+    from jaxflex.optimize import objective as obj
+
+    rng = np.random.default_rng(3)
+    tables, k = jnp.asarray(rng.normal(size=(5, 7, 3))), 5
+
+    def total(theta):
+        drive = jnp.sin(theta[1] * jnp.arange(1.0, 8.0))        # closed over, like the motion samples
+
+        def one(tab, robot):
+            assert robot is None
+            def step(x, row):
+                x = 0.9 * x + jnp.tanh(row * theta[:3]) * drive[0] + row * x * x
+                return x, jnp.sum(x * x)
+            x, e = jax.lax.scan(step, jnp.zeros(3), tab * drive[:, None])
+            return {"energy": jnp.sum(e), "end": x}
+        t = obj.over_models(one, tables, None)
+        assert t["energy"].shape == (k,) and t["end"].shape == (k, 3)
+        w = jnp.arange(1.0, k + 1.0)                               # the models' order matters
+        return jnp.log(jnp.sum(w * t["energy"])) + jnp.sum(w[:, None] * t["end"] ** 2)
+
+    theta = jnp.asarray([0.3, -0.2, 0.5])
+    assert k > obj.VMAP_MODELS                                  # the default runs them one at a time
+    one_by_one = jax.value_and_grad(total)(theta)
+    monkeypatch.setattr(obj, "VMAP_MODELS", k)
+    vmapped = jax.value_and_grad(total)(theta)
+    np.testing.assert_allclose(one_by_one[0], vmapped[0], rtol=1e-12)
+    np.testing.assert_allclose(one_by_one[1], vmapped[1], rtol=1e-12)
+    assert float(jnp.max(jnp.abs(vmapped[1]))) > 1e-3           # a gradient that could differ
+
+
 @pytest.mark.xdist_group("commands")
 def test_law_gradient_matches_central_differences_full_6kg_rollout():
     """The law optimizer's own gradient (``loop.value_and_grad`` on the law objective as ``train_law``
