@@ -54,8 +54,11 @@ def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwe
       differentiated function from the workspace tables (their build, once per model, is timed
       apart, compilation included), and the objective alone (forward) for the ratio;
     - ``law`` (not with ``quick``): the same for the 6 coefficients of a shaped law on the Lamé path
-      (tables fixed).
-    Compile times are the first call minus a run."""
+      (tables fixed);
+    - ``design_box`` (not with ``quick``): the design gradient of the studies, over the 9 models of
+      the perturbation box (``--train box``), with its XLA temporary memory: the largest buffer set
+      of a study.
+    Compile times are those of the program alone (``compile_gradient_ahead``)."""
     from jaxflex.designs import design
     from jaxflex.optimize.objective import Scales, encode
     from jaxflex.optimize.study import (StudyConfig, design_objective, law_objective_args, training_models,
@@ -84,6 +87,13 @@ def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwe
         f_law, args_law = law_objective_args(models, path, tf, dwell, grid, scales, power=c.robust_power,
                                              order=c.law_order)
         out["law"] = _time_value_and_grad(f_law, coef, args_law, repeats, True, hot=True)
+        box = training_models(robot, [payload], "box")
+        k = len(box.ids)
+        box_scales = Scales(jnp.full(k, 1e-3), jnp.full(k, 1e-10), jnp.full(k, 90.0), None)
+        f_box, args_box = design_objective(box, cycle, tf, dwell, grid, box_scales, build_workspace(box.robots, cycle),
+                                           power=c.robust_power, order=c.law_order, blend=c.blend)
+        out["design_box"] = _time_value_and_grad(f_box, params, args_box, repeats, False, hot=True)
+        out["design_box"]["models"] = k
     return out
 
 
@@ -91,12 +101,16 @@ def _time_value_and_grad(f, params, args, repeats: int, forward: bool, hot: bool
     """Compile and run times of the optimizer's value and gradient: ``hot``, the program a long
     optimization runs (``loop.is_hot``); else the one of a few steps (the quick bench shares it with
     a smoke run's optimizer)."""
-    from jaxflex.optimize.loop import value_and_grad
+    from jaxflex.optimize.loop import compile_gradient_ahead, value_and_grad
 
-    first, run, _ = _time_first_and_median(lambda p: value_and_grad(p, args, f=f, hot=hot), params,
-                                           repeats=repeats)
+    t0 = time.perf_counter()
+    program = compile_gradient_ahead(params, args, f=f, hot=hot).result()
+    compile_s = time.perf_counter() - t0
+    run = _median_time(lambda p: value_and_grad(p, args, f=f, hot=hot), params, repeats=repeats)
+    mem = program.memory_analysis()
     rec = {"parameters": int(sum(np.size(v) for v in jax.tree_util.tree_leaves(params))),
-           "grad_compile_s": max(first - run, 0.0), "grad_run_s": run}
+           "grad_compile_s": compile_s, "grad_run_s": run,
+           "grad_temp_gib": None if mem is None else mem.temp_size_in_bytes / 2**30}
     if forward:
         fwd = jax.jit(lambda p: f(p, *args)[0])
         first, run_f, _ = _time_first_and_median(fwd, params, repeats=repeats)
@@ -124,14 +138,16 @@ def compute(repeats: int = 5, quick: bool = False) -> dict:
     print("the optimizer's value and gradient (6 kg, tf 0.43 s, one model, reverse mode) ...", flush=True)
     grad = gradient_bench(repeats, quick=quick)
     for key, what in (("design", "6 blend parameters + 6 law coefficients, tables rebuilt from the workspace"),
-                      ("law", "6 law coefficients, tables fixed")):
+                      ("law", "6 law coefficients, tables fixed"),
+                      ("design_box", "the design gradient over the 9 box models")):
         if key not in grad:
             continue
         g = grad[key]
         fwd = (f"forward {g['forward_run_s'] * 1e3:.1f} ms (compile {g['forward_compile_s']:.0f} s), "
                f"gradient x{g['grad_over_forward']:.2f}; " if "forward_run_s" in g else "")
-        print(f"  {what}: value and gradient {g['grad_run_s'] * 1e3:.1f} ms (compile {g['grad_compile_s']:.0f} s); "
-              + fwd, flush=True)
+        temp = f", XLA temp {g['grad_temp_gib']:.2f} GiB" if g["grad_temp_gib"] is not None else ""
+        print(f"  {what}: value and gradient {g['grad_run_s'] * 1e3:.1f} ms (compile {g['grad_compile_s']:.0f} s"
+              f"{temp}); " + fwd, flush=True)
     rec = {"sweep": sweep, "gradient": grad, "peak_rss_mb": _peak_rss_mb(), "quick": quick,
            "devices": [str(d) for d in jax.devices()],
            "provenance": provenance({"repeats": repeats, "quick": quick}, started)}

@@ -59,6 +59,9 @@ def metrics_of(series: Series) -> dict:
     return {k: np.asarray(v) for k, v in batch_metrics(series).items()}
 
 
+REMEMBERED_MODELS = 16      # LawEvaluators of at most this many models keep their tables in the memo
+
+
 class LawEvaluator:
     """Metrics of any motion law along one path on a set of models (second-order fast model).
 
@@ -74,9 +77,18 @@ class LawEvaluator:
         if chunk < 1:
             raise ValueError(f"chunk must be >= 1, got {chunk}")
         self.models, self.path, self.tf, self.dwell, self.grid, self.chunk = models, path, tf, dwell, grid, chunk
-        self.tables = path_tables(models.robots, path)
-        self._per_model = [(jax.tree_util.tree_map(lambda v: v[i], self.tables),
-                            jax.tree_util.tree_map(lambda v: v[i], models.robots)) for i in range(k)]
+        # the tables built and kept per model (the rollouts take them one model at a time), in one
+        # copy: 2.3 MB per model on the default path, 0.5 GB for the studies' 212 evaluation models;
+        # the same coefficient program on the same chunks of poses as a stacked build, so the same values
+        robots = [jax.tree_util.tree_map(lambda v: v[i], models.robots) for i in range(k)]
+        remember = k <= REMEMBERED_MODELS           # small sets come again (``linearized.coeffs_many``)
+        tables = host_map(lambda robot: path_tables(robot, path, remember=remember), robots)
+        self._per_model = list(zip(tables, robots))
+
+    @property
+    def tables(self) -> Tables:
+        """The tables of every model, stacked along a leading axis K (a new copy at each access)."""
+        return trees.stack([tables for tables, _ in self._per_model])
 
     def with_grid(self, grid: Grid) -> "LawEvaluator":
         """The same path and models on another grid, sharing the tables (they do not depend on it)."""

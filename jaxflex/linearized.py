@@ -284,7 +284,7 @@ def clear_memo() -> None:
         _MEMO.clear()
 
 
-def coeffs_many(robot: Robot, qa, qa1, qa2) -> Coeffs:
+def coeffs_many(robot: Robot, qa, qa1, qa2, *, remember: bool = True) -> Coeffs:
     """``coeffs_at`` for any number N of poses (qa, qa1, qa2: (N, 2) each) through one compiled
     program of fixed shape (``COEFF_CHUNK`` poses per call) that every table builder shares: the
     sweep tables, the model-set tables and the workspace tables compile ``pose_coeffs`` once per
@@ -292,7 +292,10 @@ def coeffs_many(robot: Robot, qa, qa1, qa2) -> Coeffs:
     robots; then the poses are (K, N, 2) or shared (N, 2), and every leaf gets a leading K axis.
     Not traceable (call it on concrete arrays). Recent results are remembered by the content of the
     inputs (``trees.content_key``): the same robots and poses again (a study's tables rebuilt by the
-    next study or a rerun in the same process) return the same arrays without running the program."""
+    next study or a rerun in the same process) return the same arrays without running the program;
+    ``remember=False`` neither looks them up nor keeps the result (large one-off sets)."""
+    if not remember:
+        return _coeffs_many(robot, qa, qa1, qa2)
     key = trees.content_key(robot, qa, qa1, qa2)
     with _MEMO_LOCK:
         hit = _MEMO.get(key)
@@ -334,11 +337,11 @@ def robot_table_poses(robot: Robot, path: Path):
     return tuple(trees.stack(a) for a in zip(*poses))
 
 
-def path_tables(robot: Robot, path: Path) -> Tables:
-    """``build_tables`` on concrete arrays through the shared coefficient program (``coeffs_many``):
-    no new compilation of the model per caller. ``robot`` may be a stack of K robots (tables with a
-    leading K axis)."""
-    values = coeffs_many(robot, *robot_table_poses(robot, path))
+def path_tables(robot: Robot, path: Path, *, remember: bool = True) -> Tables:
+    """``build_tables`` on concrete arrays through the shared coefficient program (``coeffs_many``,
+    which remembers recent results unless ``remember`` is False): no new compilation of the model
+    per caller. ``robot`` may be a stack of K robots (tables with a leading K axis)."""
+    values = coeffs_many(robot, *robot_table_poses(robot, path), remember=remember)
     if np.ndim(robot.payload) == 0:
         return Tables(values=values, breaks=path.breaks)
     k = np.shape(robot.payload)[0]

@@ -202,6 +202,7 @@ def test_bench_command(tmp_path, capsys):
     assert sweep["rollouts"] == 24 and sweep["run_s"] > 0 and sweep["compile_s"] >= 0
     g = rec["gradient"]["design"]
     assert g["parameters"] == 12 and g["grad_run_s"] > 0 and g["grad_compile_s"] >= 0
+    assert g["grad_temp_gib"] is None or g["grad_temp_gib"] > 0          # XLA temp of the gradient program
     assert rec["peak_rss_mb"] > 0 and "rollout program" in out
 
 
