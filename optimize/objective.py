@@ -124,9 +124,10 @@ def over_models(fn, *batched):
 
     Up to ``VMAP_MODELS`` models are vmapped. More run one at a time (``lax.map``) with ``fn``
     rematerialized in reverse mode (``jax.checkpoint``): the backward pass then holds one model's
-    rollout at a time instead of all K. The design gradient on the 9 box models: 0.24 GiB of XLA
-    temp memory against 1.84, 1.55 s per step against 1.64, 20 s longer to compile (2 cores); the
-    same values to round-off (4e-13)."""
+    rollout at a time instead of all K. The design gradient on the 9 box models (the hot program, 2
+    cores, cold): 0.23 GiB of XLA temporary memory against 1.84 vmapped, 60-69 s to compile against
+    43-50; a step takes 1.32 s against 1.00 with glibc's malloc on huge pages (the CLI's setting),
+    1.33 against 1.86 without; the same value and gradient to round-off (3e-13 relative)."""
     if _count(batched) <= VMAP_MODELS:
         return jax.vmap(fn)(*batched)
     remat = jax.checkpoint(fn)
