@@ -44,6 +44,14 @@ def _time_first_and_median(f, *args, repeats: int):
     return first, _median_time(f, *args, repeats=repeats), out
 
 
+def _scales(k: int, weights):
+    """Fixed reference values for k models (energy 1e-3 J, dwell 1e-10 m^2, torque bound 90 N m): the
+    bench times the objective, it does not compare designs."""
+    from jaxflex.optimize.objective import Scales
+
+    return Scales(jnp.full(k, 1e-3), jnp.full(k, 1e-10), jnp.full(k, 90.0), weights)
+
+
 def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwell: float = 0.1,
                    quick: bool = False) -> dict:
     """The optimizer's own programs on one 6 kg model, tf = 0.43 s (what ``jaxflex optimize --train
@@ -60,7 +68,7 @@ def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwe
       of a study.
     Compile times are those of the program alone (``compile_gradient_ahead``)."""
     from jaxflex.designs import design
-    from jaxflex.optimize.objective import Scales, encode
+    from jaxflex.optimize.objective import encode
     from jaxflex.optimize.study import (StudyConfig, design_objective, law_objective_args, training_models,
                                         training_weights)
 
@@ -70,8 +78,7 @@ def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwe
     # the study's defaults, weights and pytrees: the optimizer's own compiled program (one process
     # that ran ``jaxflex optimize --train nominal`` on this grid reuses it)
     c = StudyConfig()
-    scales = Scales(jnp.full(1, 1e-3), jnp.full(1, 1e-10), jnp.full(1, 90.0),
-                    jnp.asarray(training_weights("nominal", 1)))
+    scales = _scales(1, jnp.asarray(training_weights("nominal", 1)))
     coef = jnp.asarray([1.0, 1.2, 0.9, 1.0, 1.1, 0.95])
     t0 = time.perf_counter()
     ws = jax.block_until_ready(build_workspace(models.robots, cycle))
@@ -89,8 +96,7 @@ def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwe
         out["law"] = _time_value_and_grad(f_law, coef, args_law, repeats, True, hot=True)
         box = training_models(robot, [payload], "box")
         k = len(box.ids)
-        box_scales = Scales(jnp.full(k, 1e-3), jnp.full(k, 1e-10), jnp.full(k, 90.0), None)
-        f_box, args_box = design_objective(box, cycle, tf, dwell, grid, box_scales, build_workspace(box.robots, cycle),
+        f_box, args_box = design_objective(box, cycle, tf, dwell, grid, _scales(k, None), build_workspace(box.robots, cycle),
                                            power=c.robust_power, order=c.law_order, blend=c.blend)
         out["design_box"] = _time_value_and_grad(f_box, params, args_box, repeats, False, hot=True)
         out["design_box"]["models"] = k

@@ -24,7 +24,7 @@ import numpy as np
 
 from jaxflex import trees
 from jaxflex.compiled import HOT_LOOP
-from jaxflex.linearized import Tables, path_tables
+from jaxflex.linearized import Tables, _robot_list, path_tables
 from jaxflex.metrics import batch_metrics
 from jaxflex.model_sets import ModelSet
 from jaxflex.parallel import host_map
@@ -80,7 +80,7 @@ class LawEvaluator:
         # the tables built and kept per model (the rollouts take them one model at a time), in one
         # copy: 2.3 MB per model on the default path, 0.5 GB for the studies' 212 evaluation models;
         # the same coefficient program on the same chunks of poses as a stacked build, so the same values
-        robots = [jax.tree_util.tree_map(lambda v: v[i], models.robots) for i in range(k)]
+        robots = _robot_list(models.robots)
         remember = k <= REMEMBERED_MODELS           # small sets come again (``linearized.coeffs_many``)
         tables = host_map(lambda robot: path_tables(robot, path, remember=remember), robots)
         self._per_model = list(zip(tables, robots))
