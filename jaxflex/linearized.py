@@ -364,7 +364,7 @@ def interpolate(tables: Tables, s) -> Coeffs:
     w = jnp.stack([-(t - 1) * (t - 2) * (t - 3) / 6, t * (t - 2) * (t - 3) / 2,
                    -t * (t - 1) * (t - 3) / 2, t * (t - 1) * (t - 2) / 6])
     idx = offsets[seg] + i0 + jnp.arange(4)
-    return jax.tree_util.tree_map(lambda v: jnp.tensordot(w, v[idx], axes=1), tables.values)
+    return trees.map_packed(lambda v: jnp.tensordot(w, v[idx], axes=1), tables.values, lead=1)
 
 
 def evaluate(c: Coeffs, ds, dds):

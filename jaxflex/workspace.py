@@ -28,6 +28,7 @@ import jax.numpy as jnp
 import numpy as np
 from jax.custom_derivatives import SymbolicZero
 
+from jaxflex import trees
 from jaxflex.linearized import Coeffs, Tables, _robot_list, _segment_nodes, coeffs_many, pose_coeffs
 from jaxflex.path import Cycle, Path, path_frame
 from jaxflex.robot import Robot, check_reachable, igm, joint_motion
@@ -182,7 +183,7 @@ def interpolate_basis(ws: Workspace, x) -> dict:
         i0 = jnp.clip(jnp.floor(local[k]).astype(int) - 1, 0, int(n[k]) - 4)
         idx.append(i0 + jnp.arange(4))
         ts.append(local[k] - i0.astype(float))
-    return {k: _bicubic(v[idx[0][:, None], idx[1][None, :]], *ts) for k, v in ws.values.items()}
+    return trees.map_packed(lambda v: _bicubic(v[idx[0][:, None], idx[1][None, :]], *ts), ws.values, lead=2)
 
 
 def _monomials(qa1, qa2):

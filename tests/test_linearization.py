@@ -98,6 +98,27 @@ def test_tables_interpolate_the_coefficients_between_nodes(setup):
                                    err_msg=name)
 
 
+
+def test_interpolating_all_fields_at_once_equals_field_by_field(setup):
+    """``interpolate`` runs one gather and one cubic on all fields joined (``trees.map_packed``): the
+    same values and arc-length derivative as interpolating every field on its own, to round-off
+    (the sums are the same; 1e-13 allows a different summation order)."""
+    from jaxflex import trees
+
+    robot, path, tables = setup
+    s = jnp.asarray(0.37 * float(path.length))
+    idx, w = jnp.asarray([3, 4, 5, 6]), jnp.asarray([-0.0625, 0.5625, 0.5625, -0.0625])
+    packed = jax.jacfwd(lambda x: trees.map_packed(lambda v: jnp.tensordot(w * x, v[idx], axes=1),
+                                                   tables.values, lead=1))(s)
+    each = jax.jacfwd(lambda x: jax.tree_util.tree_map(lambda v: jnp.tensordot(w * x, v[idx], axes=1),
+                                                       tables.values))(s)
+    assert jax.tree_util.tree_structure(packed) == jax.tree_util.tree_structure(each)
+    for a, b in zip(jax.tree_util.tree_leaves(packed), jax.tree_util.tree_leaves(each)):
+        assert a.shape == b.shape
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-13, atol=1e-300)
+    got = jax.vmap(lambda x: interpolate(tables, x))(jnp.asarray([0.1, 0.5]) * path.length)
+    for name, v in got._asdict().items():
+        assert v.shape[1:] == tables.values._asdict()[name].shape[1:], name
 def test_rollout_uses_the_same_polynomial_in_the_path_motion(setup):
     """The rollout's frozen system and forcing (``simulate``, from the slow and fast coefficient
     groups) are the coefficients' polynomial in (s', s'') of ``linearized.evaluate``."""
