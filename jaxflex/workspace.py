@@ -139,6 +139,20 @@ def build_workspace(robot: Robot, cycle: Cycle, spacing: float = 0.005) -> Works
                        step=jnp.broadcast_to(ws.step, (k, 2)))
 
 
+def workspace_shapes(robot: Robot, cycle: Cycle, spacing: float = 0.005) -> Workspace:
+    """The shapes and dtypes of ``build_workspace(robot, cycle, spacing)`` (a Workspace of
+    ``jax.ShapeDtypeStruct``) without building it: one trace of the model at one pose, no
+    compilation, so that a program taking the workspace can start compiling
+    (``jaxflex.compiled.compile_ahead``) while the tables are built."""
+    nu, nv = grid_shape(cycle, spacing)
+    lead = np.shape(robot.payload)[:1]
+    one = jax.tree_util.tree_map(lambda a: jax.ShapeDtypeStruct(np.shape(a)[len(lead):], jnp.result_type(a)), robot)
+    basis = jax.eval_shape(_basis_at, one, jax.ShapeDtypeStruct((2,), jnp.float64))
+    struct = lambda shape: jax.ShapeDtypeStruct(lead + shape, jnp.float64)
+    return Workspace(values={k: struct((nu, nv) + v.shape) for k, v in basis.items()},
+                     origin=struct((2,)), axes=struct((2, 2)), step=struct((2,)))
+
+
 def _weights(t):
     """Cubic Lagrange weights (4,) at t in [0, 3] for nodes 0..3."""
     return jnp.stack([-(t - 1) * (t - 2) * (t - 3) / 6, t * (t - 2) * (t - 3) / 2,

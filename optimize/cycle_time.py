@@ -31,9 +31,12 @@ from jaxflex.sweep import Case, default_grid, run_sweep
 
 from jaxflex.engine import LawEvaluator
 from jaxflex.model_sets import model_set
+from jaxflex.workspace import workspace_shapes
+from .loop import compile_gradient_ahead, is_hot
 from .objective import decode, encode
-from .study import (PERTURB_E, PERTURB_PAYLOAD, StudyConfig, _check_problem, _workspaces, check_study_args, nominal_indices,
-                    reference_scales, start_design, torque_bounds, train_design, training_models, training_weights)
+from .study import (PERTURB_E, PERTURB_PAYLOAD, StudyConfig, _abstract_scales, _check_problem, _workspaces,
+                    check_study_args, design_objective, nominal_indices, reference_scales, start_design,
+                    torque_bounds, train_design, training_models, training_weights)
 
 TORQUE_TOL = 1.01   # a design counts when its peak torque is within 1 % of the bound (soft penalty)
 
@@ -87,6 +90,15 @@ def cycle_time_study(problem: Problem, tfs: Sequence[float] = (0.43, 0.40, 0.37,
         tfs = np.append(tfs, tf_ref)
     tfs = np.sort(tfs)[::-1]
     grid = default_grid(robot, [float(tfs.max())], dwell)     # step <= 0.1 ms at every tf
+    models = training_models(robot, [payload], train, box=config.box, points=config.box_points, cycle=cycle)
+    params = encode(cycle, start_design(cycle, n_coef, config.blend))
+    if steps > 0:
+        # the design gradient (one program for every tf) compiles in the background during the sweep
+        f, args = design_objective(models, cycle, float(tfs[0]), dwell, grid,
+                                   _abstract_scales(len(models.ids), training_weights(train)),
+                                   workspace_shapes(models.robots, cycle), power=config.robust_power,
+                                   order=config.law_order, blend=config.blend)
+        compile_gradient_ahead(params, args, f=f, hot=is_hot(steps))
     res = run_sweep(robot, cycle, [Case(payload, float(t)) for t in tfs], dwell=dwell, grid=grid,
                     timed=False)
     dw = res.metrics["dwell_residual_mm"]                                   # (B, P, T)
@@ -102,7 +114,6 @@ def cycle_time_study(problem: Problem, tfs: Sequence[float] = (0.43, 0.40, 0.37,
         print(f"cycle-time study, {payload:g} kg: best paper at tf_ref = {tf_ref:g} s is {blend}/{law}, "
               f"dwell residual {target:.4g} mm; torque bound {bound:.1f} N m; optimizing designs for "
               f"tf = {', '.join(f'{t:g}' for t in np.asarray(tfs, dtype=float))} s", flush=True)
-    models = training_models(robot, [payload], train, box=config.box, points=config.box_points, cycle=cycle)
     ref_eval = LawEvaluator(models, make_path(cycle, blend, 0.025), tf_ref, dwell, grid)
     bounds = torque_bounds(models, cycle, tf_ref, dwell, grid, ref_eval)       # per training model
     chunk = len(models.labels)       # every evaluator in batches of this size: one rollout program
@@ -110,7 +121,6 @@ def cycle_time_study(problem: Problem, tfs: Sequence[float] = (0.43, 0.40, 0.37,
     i_nominal = int(nominal_indices(perturbed, [payload])[0])      # the nominal model is one of them
     paper_perturbed = LawEvaluator(perturbed, make_path(cycle, blend, 0.025), tf_ref, dwell, grid, chunk=chunk)
     target_perturbed = float(np.max(paper_perturbed(make_profile(law))["dwell_residual_mm"]))
-    params = encode(cycle, start_design(cycle, n_coef, config.blend))
     workspaces = _workspaces(models, cycle, progress)           # once for every tf
     opt_res, opt_worst, opt_tau, designs = [], [], [], []
     for tf in tfs:

@@ -21,7 +21,8 @@
    payload x {0.9, 1, 1.1}), with 1 % damping at the first mode, on random models of the
    uncertainty box and on the richer validation model (``evaluation_sets``).
 
-Time: the design gradient compiles in a background thread while the paper sweep runs
+Time: the design gradient compiles in a background thread from the start, while the workspace tables
+are built and the paper sweep runs
 (``loop.compile_gradient_ahead``), and the evaluation sets with every baseline on them, which do
 not depend on the design, are computed beside the optimizer (``jaxflex.parallel.Beside``); only the optimized
 design is evaluated after it. The results are those of the sequential order, bit for bit.
@@ -61,7 +62,7 @@ from jaxflex.robot import Robot, check_cycle_reachable
 from jaxflex.simulate import Grid, check_grid
 from jaxflex.uncertainty import Box
 from jaxflex.sweep import default_grid
-from jaxflex.workspace import Workspace, build_workspace
+from jaxflex.workspace import Workspace, build_workspace, workspace_shapes
 
 from .baselines import ruckig_samples, shaper_profiles
 from .loop import OptimizerConfig, OptResult, compile_gradient_ahead, is_hot, minimize
@@ -467,14 +468,15 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
     weights = training_weights(train, len(payloads))
     workspaces = None
     if free_path:
-        # the design gradient compiles (about a minute cold) in the background during the paper sweep:
-        # its scales are only shapes until then
-        workspaces = _workspaces(models, cycle, progress)
+        # the design gradient compiles (about a minute cold) in the background from the start, during
+        # the workspace tables and the paper sweep: its workspace and scales are only shapes until then
         x0 = init if init is not None else start_design(cycle, n_coef, c.blend)
         if steps > 0:
             f, args = design_objective(models, cycle, tf, dwell, grid, _abstract_scales(len(models.ids), weights),
-                                       workspaces, power=c.robust_power, order=c.law_order, blend=c.blend)
+                                       workspace_shapes(models.robots, cycle), power=c.robust_power,
+                                       order=c.law_order, blend=c.blend)
             compile_gradient_ahead(encode(cycle, x0), args, f=f, hot=is_hot(steps))
+        workspaces = _workspaces(models, cycle, progress)
     nominal = nominal_indices(models, payloads)
     sweep = paper_sweep(subset(models, nominal), cycle, tf, dwell, grid, progress=progress)
     paper = sweep.metrics                                                       # (B, P, C)

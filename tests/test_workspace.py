@@ -9,13 +9,30 @@ from jaxflex.linearized import coeffs_many, path_tables
 from jaxflex.path import make_path
 from jaxflex.robot import cycle_preset, igm, robot_preset
 from jaxflex.workspace import (MONOMIALS, ORDER0, ORDER1, ORDER2, _PROBES, _combine_all, _order, build_workspace,
-                               coeffs_from_basis, workspace_tables)
+                               coeffs_from_basis, workspace_shapes, workspace_tables)
 
 
 @pytest.fixture(scope="module")
 def setup():
     robot, cycle = robot_preset("default", payload=6.0), cycle_preset()
     return robot, cycle, build_workspace(robot, cycle)
+
+
+def test_workspace_shapes_are_those_of_the_built_workspace(setup):
+    """``workspace_shapes`` (what the design gradient compiles against while the tables are built)
+    gives every leaf's shape and dtype of ``build_workspace``, for one robot and, with the leading
+    model axis, for a stack of robots."""
+    from jaxflex.optimize.objective import stack_robots
+
+    robot, cycle, ws = setup
+    shapes = workspace_shapes(robot, cycle)
+    assert jax.tree_util.tree_structure(shapes) == jax.tree_util.tree_structure(ws)
+    for s, a in zip(jax.tree_util.tree_leaves(shapes), jax.tree_util.tree_leaves(ws)):
+        assert (s.shape, s.dtype) == (a.shape, a.dtype)
+    two = workspace_shapes(stack_robots([robot, robot.replace(payload=0.1)]), cycle)
+    assert jax.tree_util.tree_structure(two) == jax.tree_util.tree_structure(ws)
+    for s, a in zip(jax.tree_util.tree_leaves(two), jax.tree_util.tree_leaves(ws)):
+        assert (s.shape, s.dtype) == ((2,) + a.shape, a.dtype)
 
 
 def test_coefficients_are_exact_polynomials_in_the_path_derivatives():
