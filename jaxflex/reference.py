@@ -44,6 +44,17 @@ from jaxflex.simulate import Series, low_mode_acceleration
 from jaxflex.trajectory import task_from_arc
 
 
+def _joint_samples_chunked(robot: Robot, path: Path, profile: Profile, tf, eta, side):
+    """``_joint_samples`` at the normalized times eta (T,) (numpy), evaluated CHUNK samples per call
+    (the last call padded with the last time): one program per path family, law kind and side for
+    every run length (tf / dt), instead of one per sample count."""
+    n = len(eta)
+    padded = np.concatenate([eta, np.full(-n % CHUNK, eta[-1])])
+    parts = [_joint_samples(robot, path, profile, tf, jnp.asarray(padded[i:i + CHUNK]), side=side)
+             for i in range(0, len(padded), CHUNK)]
+    return trees.concatenate(parts, length=n)
+
+
 @functools.partial(jax.jit, static_argnames="side")
 def _joint_samples(robot: Robot, path: Path, profile: Profile, tf, eta, side):
     """Motor angles, rates, accelerations (T, 2) each at normalized times eta (T,) (one program per
@@ -201,7 +212,7 @@ def reference_rollout(robot: Robot, path: Path | Sequence[Path], profile: Profil
     with bar:
         with bar.waiting("the motors' motion at every step"):
             tfa, k = jnp.asarray(tf), np.arange(n)
-            samples = [tuple(_joint_samples(robot, pth, p, tfa, jnp.asarray(eta), side=side)
+            samples = [tuple(_joint_samples_chunked(robot, pth, p, tfa, eta, side)
                              for eta, side in ((k / n, 1), ((k + 0.5) / n, 1), ((k + 1) / n, -1)))
                        for pth, p in zip(paths, profiles)]
         # one flat batch of runs (law-major, then payload), every input repeated per run
