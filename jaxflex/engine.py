@@ -67,11 +67,13 @@ class LawEvaluator:
 
     The tables are built once per model; every law (paper, shaped, input-shaped, Ruckig samples) on
     every model runs through the evaluation engine's one compiled program (``jaxflex.engine``), one
-    model at a time, so evaluators of any model set share it. ``chunk`` is accepted for
-    compatibility (it used to set the batch size of a vmapped program) and must be >= 1."""
+    model at a time, so evaluators of any model set share it. ``keep=False``: the tables are not
+    kept but built again, model by model, at every call (for a large set evaluated on one law: the
+    memory of a few models' tables instead of all). ``chunk`` is accepted for compatibility (it used
+    to set the batch size of a vmapped program) and must be >= 1."""
 
     def __init__(self, models: ModelSet, path: Path, tf: float, dwell: float, grid: Grid, *,
-                 chunk: int | None = None):
+                 chunk: int | None = None, keep: bool = True):
         k = len(models.labels)
         chunk = k if chunk is None else int(chunk)
         if chunk < 1:
@@ -79,16 +81,20 @@ class LawEvaluator:
         self.models, self.path, self.tf, self.dwell, self.grid, self.chunk = models, path, tf, dwell, grid, chunk
         # the tables built and kept per model (the rollouts take them one model at a time), in one
         # copy: 2.3 MB per model on the default path, 0.5 GB for the studies' 212 evaluation models;
-        # the same coefficient program on the same chunks of poses as a stacked build, so the same values
-        robots = _robot_list(models.robots)
-        remember = k <= REMEMBERED_MODELS           # small sets come again (``linearized.coeffs_many``)
-        tables = host_map(lambda robot: path_tables(robot, path, remember=remember), robots)
-        self._per_model = list(zip(tables, robots))
+        # the same coefficient program on the same chunks of poses as a stacked build, so the same values.
+        # Without ``keep`` (a large set evaluated on one law) every call builds each model's tables,
+        # runs it and drops them: a few models' tables in memory at a time, the same values.
+        self._robots = _robot_list(models.robots)
+        self._remember = k <= REMEMBERED_MODELS     # small sets come again (``linearized.coeffs_many``)
+        self._tables = host_map(self._build, self._robots) if keep else None
+
+    def _build(self, robot: Robot) -> Tables:
+        return path_tables(robot, self.path, remember=self._remember)
 
     @property
     def tables(self) -> Tables:
         """The tables of every model, stacked along a leading axis K (a new copy at each access)."""
-        return trees.stack([tables for tables, _ in self._per_model])
+        return trees.stack(self._tables if self._tables is not None else host_map(self._build, self._robots))
 
     def with_grid(self, grid: Grid) -> "LawEvaluator":
         """The same path and models on another grid, sharing the tables (they do not depend on it)."""
@@ -103,8 +109,11 @@ class LawEvaluator:
         """The simulation ``Series`` of a law on every model (leading axis K)."""
         tf = self.tf if tf is None else tf
         samples = law if isinstance(law, MotionSamples) else self.samples(law, tf)
-        return run_many([(tables, samples, tf, self.dwell, robot) for tables, robot in self._per_model],
-                               self.grid)
+        if self._tables is None:
+            return trees.stack(host_map(lambda robot: run(self._build(robot), samples, tf, self.dwell, robot,
+                                                          self.grid), self._robots))
+        return run_many([(tables, samples, tf, self.dwell, robot) for tables, robot in zip(self._tables, self._robots)],
+                        self.grid)
 
     def __call__(self, law, tf: float | None = None) -> dict:
         """law: a Profile or MotionSamples -> metrics dict name -> (K,) numpy arrays. ``tf`` [s]

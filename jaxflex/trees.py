@@ -1,9 +1,10 @@
-"""Stacking pytrees of concrete arrays on the host.
+"""Pytrees of arrays: stacking concrete ones on the host, mapping traced ones at once.
 
 An eager ``jnp.stack`` or ``jnp.concatenate`` compiles a small XLA program for every new number and
 shape of its operands; batches of robots, tables and series come in many sizes, so joining them on
 the host (numpy, then one transfer per leaf) avoids a trickle of small compilations. For concrete
-values only (inside a traced function use ``jnp`` directly).
+values only (inside a traced function use ``jnp`` directly), except ``map_packed``, which is for
+traced code: one operation on all leaves of a pytree at once.
 """
 from __future__ import annotations
 

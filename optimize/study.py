@@ -146,7 +146,7 @@ class DesignStudy(NamedTuple):
     first_mode_hz: tuple
     grid: Grid
     wall_s: float
-    evaluators: dict            # set -> path name -> LawEvaluator
+    evaluators: dict            # "nominal" -> path name -> LawEvaluator (the other sets' are dropped after use)
     setup_s: float = 0.0        # wall time [s] from the study's start to the optimizer's start
 
     def series(self, name: str):
@@ -382,17 +382,22 @@ def evaluation_sets(robot: Robot, cycle: Cycle, payloads, tf: float, dwell: floa
 
 def _paper_evaluations(cancelled, robot, cycle, payloads, tf, dwell, grid, config, path, candidates):
     """The evaluation sets, the best paper path's evaluators on them and every candidate on that
-    path (the baselines) evaluated: (sets, grids, evaluators set -> {"paper": LawEvaluator},
-    evaluations set -> candidate -> metrics). Stops early when ``cancelled`` is set."""
+    path (the baselines) evaluated: (sets, grids, evaluators set -> {"paper": LawEvaluator} (for a
+    free path the nominal set's only, else {}), evaluations set -> candidate -> metrics). Stops early
+    when ``cancelled`` is set."""
     sets, grids = evaluation_sets(robot, cycle, payloads, tf, dwell, grid, config)
     evaluators, evaluations = {}, {}
     for k, s in sets.items():
-        evaluators[k] = {"paper": LawEvaluator(s, path, tf, dwell, grids.get(k, grid))}
+        ev = LawEvaluator(s, path, tf, dwell, grids.get(k, grid))
         evaluations[k] = {}
         for name, cand in candidates.items():
             if cancelled.is_set():
                 return None
-            evaluations[k][name] = evaluators[k]["paper"](cand.law)
+            evaluations[k][name] = ev(cand.law)
+        # a free path's design is evaluated along its own path, and of the paper path's tables only
+        # the nominal models' are used again (``DesignStudy.series``): the other sets' are dropped
+        # (0.5 GB per 200 models)
+        evaluators[k] = {"paper": ev} if k == "nominal" or not config.free_path else {}
     return sets, grids, evaluators, evaluations
 
 
@@ -535,8 +540,12 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
                 evaluators[k]["optimized"] = evaluators[k]["paper"]
             else:
                 with bar.waiting(f"{k}: path tables") if not bar.counting else contextlib.nullcontext():
-                    evaluators[k]["optimized"] = LawEvaluator(s, paths["optimized"], tf, dwell, grids.get(k, grid))
+                    # one law on the other sets: their tables are built, used and dropped model by model
+                    evaluators[k]["optimized"] = LawEvaluator(s, paths["optimized"], tf, dwell, grids.get(k, grid),
+                                                              keep=k == "nominal")
             evaluations[k]["optimized"] = evaluators[k]["optimized"](candidates["optimized"].law)
+            if k != "nominal":
+                evaluators[k] = {}          # only the nominal evaluators are used again (their tables go)
             bar.update(note=k)
     return DesignStudy(payloads, tf, blend, law, x, coef, result, train, models.ids, candidates, paths, evaluations,
                        {k: s.ids for k, s in sets.items()}, paper, torque_bound, limits, freqs, grid,

@@ -262,7 +262,8 @@ def test_paper_sweep_on_training_models_matches_run_sweep_and_chunks_do_not_chan
     gives the nominal model the metrics of ``run_sweep`` (same model, different callers of the
     engine: equal to rounding), and an evaluator that simulates its models in padded batches
     (``chunk``: the nine perturbed models as 5 + 4 and one padding copy) returns, for the five
-    models it shares with the training set, the training evaluator's metrics. The default 6 kg
+    models it shares with the training set, the training evaluator's metrics; an evaluator that
+    does not keep its tables (``keep=False``) returns the same metrics, bit for bit. The default 6 kg
     model, grid and 0.43 s motion of ``jaxflex optimize``."""
     from jaxflex.engine import LawEvaluator
     from jaxflex.model_sets import model_set
@@ -291,6 +292,11 @@ def test_paper_sweep_on_training_models_matches_run_sweep_and_chunks_do_not_chan
     for name, v in chunked.items():
         assert v.shape == (9,)
         np.testing.assert_allclose(v[same], sweep.metrics[name][0, 0], rtol=1e-12, atol=0, err_msg=name)
+    # an evaluator that does not keep its tables builds the same ones at every call: the same metrics
+    streamed = LawEvaluator(perturbed, sweep.evaluators["lame"].path, TF, DWELL, grid, keep=False)
+    for name, v in streamed(make_profile("poly7")).items():
+        np.testing.assert_array_equal(v, chunked[name], err_msg=name)
+    assert streamed.tables.values.mass.shape[0] == 9
     with pytest.raises(ValueError, match="chunk"):
         LawEvaluator(perturbed, sweep.evaluators["lame"].path, TF, DWELL, grid, chunk=0)
 
