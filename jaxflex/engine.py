@@ -60,6 +60,7 @@ def metrics_of(series: Series) -> dict:
 
 
 REMEMBERED_MODELS = 16      # LawEvaluators of at most this many models keep their tables in the memo
+STREAM_MODELS = 16          # models per group of an evaluator that does not keep its tables
 
 
 class LawEvaluator:
@@ -118,8 +119,28 @@ class LawEvaluator:
     def __call__(self, law, tf: float | None = None) -> dict:
         """law: a Profile or MotionSamples -> metrics dict name -> (K,) numpy arrays. ``tf`` [s]
         overrides the motion time (same grid, no recompilation; MotionSamples must match it)."""
-        out = metrics_of(self.series(law, tf))
-        bad = [k for k, v in out.items() if not np.all(np.isfinite(v))]
-        if bad:
-            raise FloatingPointError(f"non-finite {bad} for law {getattr(law, 'name', 'samples')}")
+        return self.metrics_many([law], tf)[0]
+
+    def metrics_many(self, laws: Sequence, tf: float | None = None) -> list[dict]:
+        """The metrics (as ``__call__``) of several laws, one dict per law. Without kept tables the
+        models go in groups of ``STREAM_MODELS``: each group's tables are built, every law is run on
+        them and they are dropped, so each model's tables are built once for all the laws."""
+        tf = self.tf if tf is None else tf
+        samples = [law if isinstance(law, MotionSamples) else self.samples(law, tf) for law in laws]
+        if self._tables is not None:
+            out = [metrics_of(self.series(smp, tf)) for smp in samples]
+        else:
+            parts = [[] for _ in laws]
+            for i in range(0, len(self._robots), STREAM_MODELS):
+                robots = self._robots[i:i + STREAM_MODELS]
+                tables = host_map(self._build, robots)
+                for part, smp in zip(parts, samples):
+                    part.append(metrics_of(run_many([(t, smp, tf, self.dwell, r) for t, r in zip(tables, robots)],
+                                                    self.grid)))
+                del tables
+            out = [{k: np.concatenate([p[k] for p in part]) for k in part[0]} for part in parts]
+        for law, metrics in zip(laws, out):
+            bad = [k for k, v in metrics.items() if not np.all(np.isfinite(v))]
+            if bad:
+                raise FloatingPointError(f"non-finite {bad} for law {getattr(law, 'name', 'samples')}")
         return out

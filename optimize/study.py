@@ -388,16 +388,15 @@ def _paper_evaluations(cancelled, robot, cycle, payloads, tf, dwell, grid, confi
     sets, grids = evaluation_sets(robot, cycle, payloads, tf, dwell, grid, config)
     evaluators, evaluations = {}, {}
     for k, s in sets.items():
-        ev = LawEvaluator(s, path, tf, dwell, grids.get(k, grid))
-        evaluations[k] = {}
-        for name, cand in candidates.items():
-            if cancelled.is_set():
-                return None
-            evaluations[k][name] = ev(cand.law)
+        if cancelled.is_set():
+            return None
         # a free path's design is evaluated along its own path, and of the paper path's tables only
-        # the nominal models' are used again (``DesignStudy.series``): the other sets' are dropped
-        # (0.5 GB per 200 models)
-        evaluators[k] = {"paper": ev} if k == "nominal" or not config.free_path else {}
+        # the nominal models' are used again (``DesignStudy.series``): the other sets' are not kept
+        # (built, used for every candidate and dropped in groups of models: 0.5 GB per 200 models)
+        keep = k == "nominal" or not config.free_path
+        ev = LawEvaluator(s, path, tf, dwell, grids.get(k, grid), keep=keep)
+        evaluations[k] = dict(zip(candidates, ev.metrics_many([cand.law for cand in candidates.values()])))
+        evaluators[k] = {"paper": ev} if keep else {}
     return sets, grids, evaluators, evaluations
 
 

@@ -257,14 +257,16 @@ def test_design_gradient_wrt_blend_parameters_matches_central_differences(tables
 # with the commands: the default model on the default grid, whose coefficient and rollout programs
 # the sweep and optimize commands compile in that process (nothing new to compile here)
 @pytest.mark.xdist_group("commands")
-def test_paper_sweep_on_training_models_matches_run_sweep_and_chunks_do_not_change_metrics():
+def test_paper_sweep_on_training_models_matches_run_sweep_and_chunks_do_not_change_metrics(monkeypatch):
     """The study's paper sweep (``paper_sweep``: one evaluator per blend on the training models)
     gives the nominal model the metrics of ``run_sweep`` (same model, different callers of the
     engine: equal to rounding), and an evaluator that simulates its models in padded batches
     (``chunk``: the nine perturbed models as 5 + 4 and one padding copy) returns, for the five
     models it shares with the training set, the training evaluator's metrics; an evaluator that
-    does not keep its tables (``keep=False``) returns the same metrics, bit for bit. The default 6 kg
+    does not keep its tables (``keep=False``, models in groups) returns the same metrics for
+    several laws, bit for bit. The default 6 kg
     model, grid and 0.43 s motion of ``jaxflex optimize``."""
+    from jaxflex import engine
     from jaxflex.engine import LawEvaluator
     from jaxflex.model_sets import model_set
     from jaxflex.optimize.study import PERTURB_E, PERTURB_PAYLOAD, nominal_indices, paper_sweep, training_models
@@ -294,8 +296,12 @@ def test_paper_sweep_on_training_models_matches_run_sweep_and_chunks_do_not_chan
         np.testing.assert_allclose(v[same], sweep.metrics[name][0, 0], rtol=1e-12, atol=0, err_msg=name)
     # an evaluator that does not keep its tables builds the same ones at every call: the same metrics
     streamed = LawEvaluator(perturbed, sweep.evaluators["lame"].path, TF, DWELL, grid, keep=False)
-    for name, v in streamed(make_profile("poly7")).items():
-        np.testing.assert_array_equal(v, chunked[name], err_msg=name)
+    kept = LawEvaluator(perturbed, sweep.evaluators["lame"].path, TF, DWELL, grid)
+    monkeypatch.setattr(engine, "STREAM_MODELS", 4)          # groups of 4 + 4 + 1 models
+    laws = [make_profile("poly7"), make_profile("trap_1_8")]
+    for got, want in zip(streamed.metrics_many(laws), [chunked, kept(laws[1])]):
+        for name, v in got.items():
+            np.testing.assert_array_equal(v, want[name], err_msg=name)
     assert streamed.tables.values.mass.shape[0] == 9
     with pytest.raises(ValueError, match="chunk"):
         LawEvaluator(perturbed, sweep.evaluators["lame"].path, TF, DWELL, grid, chunk=0)
