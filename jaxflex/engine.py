@@ -69,9 +69,10 @@ class LawEvaluator:
     The tables are built once per model; every law (paper, shaped, input-shaped, Ruckig samples) on
     every model runs through the evaluation engine's one compiled program (``jaxflex.engine``), one
     model at a time, so evaluators of any model set share it. ``keep=False``: the tables are not
-    kept but built again, model by model, at every call (for a large set evaluated on one law: the
-    memory of a few models' tables instead of all). ``chunk`` is accepted for compatibility (it used
-    to set the batch size of a vmapped program) and must be >= 1."""
+    kept but built again at every call, in groups of ``STREAM_MODELS`` models used for every law of
+    the call (``metrics_many``) and dropped (for a large set: the memory of a few models' tables
+    instead of all of them). ``chunk`` is accepted for compatibility (it used to set the batch size
+    of a vmapped program) and must be >= 1."""
 
     def __init__(self, models: ModelSet, path: Path, tf: float, dwell: float, grid: Grid, *,
                  chunk: int | None = None, keep: bool = True):
@@ -83,8 +84,8 @@ class LawEvaluator:
         # the tables built and kept per model (the rollouts take them one model at a time), in one
         # copy: 2.3 MB per model on the default path, 0.5 GB for the studies' 212 evaluation models;
         # the same coefficient program on the same chunks of poses as a stacked build, so the same values.
-        # Without ``keep`` (a large set evaluated on one law) every call builds each model's tables,
-        # runs it and drops them: a few models' tables in memory at a time, the same values.
+        # Without ``keep`` every call builds them again (in groups of models, see ``metrics_many``):
+        # a few models' tables in memory at a time, the same values.
         self._robots = _robot_list(models.robots)
         self._remember = k <= REMEMBERED_MODELS     # small sets come again (``linearized.coeffs_many``)
         self._tables = host_map(self._build, self._robots) if keep else None

@@ -539,7 +539,7 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
                 evaluators[k]["optimized"] = evaluators[k]["paper"]
             else:
                 with bar.waiting(f"{k}: path tables") if not bar.counting else contextlib.nullcontext():
-                    # one law on the other sets: their tables are built, used and dropped model by model
+                    # the other sets' tables are built, used and dropped in groups of models
                     evaluators[k]["optimized"] = LawEvaluator(s, paths["optimized"], tf, dwell, grids.get(k, grid),
                                                               keep=k == "nominal")
             evaluations[k]["optimized"] = evaluators[k]["optimized"](candidates["optimized"].law)
