@@ -348,6 +348,13 @@ def path_tables(robot: Robot, path: Path, *, remember: bool = True) -> Tables:
     return Tables(values=values, breaks=jnp.broadcast_to(path.breaks, (k,) + path.breaks.shape))
 
 
+def cubic_weights(t):
+    """Cubic Lagrange weights (4,) at t in [0, 3] for nodes 0..3 (the path tables' and the workspace's
+    local interpolants)."""
+    return jnp.stack([-(t - 1) * (t - 2) * (t - 3) / 6, t * (t - 2) * (t - 3) / 2,
+                      -t * (t - 1) * (t - 3) / 2, t * (t - 1) * (t - 2) / 6])
+
+
 def interpolate(tables: Tables, s) -> Coeffs:
     """Coefficients at arc length s (scalar) by local cubic interpolation within its segment."""
     br = tables.breaks
@@ -361,8 +368,7 @@ def interpolate(tables: Tables, s) -> Coeffs:
     u = jnp.where(width > 0, (s - a) / jnp.where(width > 0, width, 1.0), 0.0) * (n - 1).astype(float)
     i0 = jnp.clip(jnp.floor(u).astype(int) - 1, 0, n - 4)
     t = u - i0.astype(float)
-    w = jnp.stack([-(t - 1) * (t - 2) * (t - 3) / 6, t * (t - 2) * (t - 3) / 2,
-                   -t * (t - 1) * (t - 3) / 2, t * (t - 1) * (t - 2) / 6])
+    w = cubic_weights(t)
     idx = offsets[seg] + i0 + jnp.arange(4)
     return trees.map_packed(lambda v: jnp.tensordot(w, v[idx], axes=1), tables.values, lead=1)
 

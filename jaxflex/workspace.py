@@ -29,7 +29,8 @@ import numpy as np
 from jax.custom_derivatives import SymbolicZero
 
 from jaxflex import trees
-from jaxflex.linearized import Coeffs, Tables, _robot_list, _segment_nodes, coeffs_many, pose_coeffs
+from jaxflex.linearized import (Coeffs, Tables, _robot_list, _segment_nodes, coeffs_many, cubic_weights,
+                                pose_coeffs)
 from jaxflex.path import Cycle, Path, path_frame
 from jaxflex.robot import Robot, check_reachable, igm, joint_motion
 
@@ -153,10 +154,7 @@ def workspace_shapes(robot: Robot, cycle: Cycle, spacing: float = 0.005) -> Work
                      origin=struct((2,)), axes=struct((2, 2)), step=struct((2,)))
 
 
-def _weights(t):
-    """Cubic Lagrange weights (4,) at t in [0, 3] for nodes 0..3."""
-    return jnp.stack([-(t - 1) * (t - 2) * (t - 3) / 6, t * (t - 2) * (t - 3) / 2,
-                      -t * (t - 1) * (t - 3) / 2, t * (t - 1) * (t - 2) / 6])
+_weights = cubic_weights      # cubic Lagrange weights (4,) at t in [0, 3] (``linearized.cubic_weights``)
 
 
 @jax.custom_jvp
