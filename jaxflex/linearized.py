@@ -183,8 +183,7 @@ def remainder(robot: Robot, qa, qa1, qa2, ds, dds, x, qedd):
     qadd = qa2 * ds**2 + qa1 * dds
 
     def full(z):
-        red = mdl.reduced(robot, qa, z[:ne], qad, z[ne:2 * ne])
-        return red.mass @ jnp.concatenate([qadd, z[2 * ne:]]) + red.force
+        return mdl.residual(robot, qa, z[:ne], qad, z[ne:2 * ne], qadd, z[2 * ne:])
 
     z = jnp.concatenate([x, qedd])
     # R(tz) at t = 0, 1/2, -1/2, 1, -1 (one vmapped trace of the model) and R'(0) z by Richardson

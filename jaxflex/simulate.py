@@ -239,25 +239,47 @@ def _recurrence(phi, x0, b, unroll, keep: bool = True):
     return (x_m, states) if keep else x_m
 
 
+def _per_interval(a, v):
+    """a (Nc, i, j) applied to the rows of v (Nc m, j) interval by interval -> (Nc m, i)."""
+    nc = a.shape[0]
+    return jnp.einsum("cij,cmj->cmi", a, v.reshape((nc, -1) + v.shape[1:])).reshape(v.shape[:1] + a.shape[1:2])
+
+
+def _outputs_all(fz: _Frozen, c: FastCoeffs, ds, dds, x, f, tr):
+    """``_outputs`` at every fine node (N,) at once, the frozen maps (Nc, ...) held over each coarse
+    interval's m nodes (batched products: a few operations instead of a few per interval)."""
+    ne = fz.k.shape[1]
+    q, qd = x[:, :ne], x[:, ne:]
+    mv = _per_interval
+    qdd = mv(fz.minv, f - mv(fz.c, qd) - mv(fz.k, q))
+    node = lambda a, v: jnp.einsum("nij,nj->ni", a, v)
+    e = node(c.jx, q)
+    ed = node(c.jx, qd) + ds[:, None] * node(c.jx1, q)
+    edd = (node(c.jx, qdd) + 2.0 * ds[:, None] * node(c.jx1, qd)
+           + node(ds[:, None, None] ** 2 * c.jx2 + dds[:, None, None] * c.jx1, q))
+    tau = tr + mv(fz.tq, q) + mv(fz.tv, qd) + mv(fz.m_ae, qdd)
+    return jnp.stack([e, ed, edd, tau], axis=1)
+
+
 def _motion(x0, frozen, f_start, f_end, tr_start, fast_start, ds, dds, grid: Grid, states: bool = False):
     """March the elastic state over [0, tf]: every coarse interval frozen, every fine step exact.
 
     Returns x(tf) and either the outputs [e, e', e'', tau] (N, 4, 2) at every fine node or, with
-    ``states``, the state x (N, 2 ne) at the start of every fine step."""
+    ``states``, the state x (N, 2 ne) at the start of every fine step. Only the recurrence itself
+    runs in the loop; the forcing increments before it and the outputs after it are batched over
+    all the nodes (the loop's per-iteration work, not the arithmetic, dominates a rollout's time)."""
     nc, m = grid.coarse, grid.fine
-    per = lambda a: a.reshape((nc, m) + a.shape[1:])
-    xs = (frozen, per(f_start), per(f_end), per(tr_start),
-          jax.tree_util.tree_map(per, fast_start), per(ds), per(dds))
-    outputs = jax.vmap(_outputs, in_axes=(None, 0, 0, 0, 0, 0, 0))
+    b = _per_interval(frozen.g0, f_start) + _per_interval(frozen.g1, f_end - f_start)   # (N, 2 ne)
 
     def coarse_step(x, inp):
-        fz, fs, fe, trs, cs, dss, ddss = inp
-        b = fs @ fz.g0.T + (fe - fs) @ fz.g1.T                       # (m, 2 ne) forcing increments
-        x_end, x_start = _recurrence(fz.phi, x, b, grid.unroll)
-        return x_end, (x_start if states else outputs(fz, cs, dss, ddss, x_start, fs, trs))
+        phi, bc = inp
+        return _recurrence(phi, x, bc, grid.unroll)
 
-    x_tf, ys = jax.lax.scan(coarse_step, x0, xs)
-    return x_tf, ys.reshape((nc * m,) + ys.shape[2:])
+    x_tf, xs = jax.lax.scan(coarse_step, x0, (frozen.phi, b.reshape(nc, m, -1)))
+    xs = xs.reshape(nc * m, -1)
+    if states:
+        return x_tf, xs
+    return x_tf, _outputs_all(frozen, fast_start, ds, dds, xs, f_start, tr_start)
 
 
 def _jump_nodes(grid: Grid) -> np.ndarray:
@@ -318,7 +340,7 @@ def _second_pass_forcing(robot, tables, x0, frozen, fast_start, fast_end, sample
     ne = x0.shape[0] // 2
     x1_tf, x1 = _motion(x0, frozen, f_start, f_end, tr_start, fast_start, samples.start[1],
                         samples.start[2], grid, states=True)
-    mv = lambda a, v: jnp.einsum("cij,cmj->cmi", a, v.reshape(nc, m, -1)).reshape(n, -1)  # per-interval a @ v
+    mv = _per_interval
     x1_end = jnp.concatenate([x1[1:], x1_tf[None]])                   # state at the end of every step
     acc = lambda f, x: mv(frozen.minv, f - mv(frozen.c, x[:, ne:]) - mv(frozen.k, x[:, :ne]))
     qdd1_start = acc(f_start, x1)
@@ -385,8 +407,11 @@ def rollout(tables: Tables, samples: MotionSamples, tf, dwell, grid: Grid, robot
     s_mid, ds_mid, dds_mid = samples.mid
     slow = _interp(tables.slow(), s_mid)
     frozen = jax.vmap(lambda c, a, b: _frozen(c, a, b, h, grid.squarings))(slow, ds_mid, dds_mid)
-    fast_start = _interp(tables.fast(), samples.start[0])
-    fast_end = _interp(tables.fast(), samples.end[0])
+    # the arc length is continuous: the end of step j is the start of step j + 1 (s from the other
+    # side's formula differs by round-off at most), so the N + 1 fine nodes are interpolated once
+    fast_nodes = _interp(tables.fast(), jnp.concatenate([samples.start[0], samples.end[0][-1:]]))
+    fast_start = jax.tree_util.tree_map(lambda a: a[:-1], fast_nodes)
+    fast_end = jax.tree_util.tree_map(lambda a: a[1:], fast_nodes)
     f_start, tr_start = jax.vmap(FastCoeffs.forcing)(fast_start, *samples.start[1:])
     f_end, tr_end = jax.vmap(FastCoeffs.forcing)(fast_end, *samples.end[1:])
 

@@ -108,6 +108,24 @@ def test_mass_matrix_symmetric_positive(robot6, pose):
     assert float(jnp.min(jnp.linalg.eigvalsh(red.mass))) > 0
 
 
+@pytest.mark.parametrize("richer", [False, True])
+def test_matrix_free_residual_equals_reduced_equations(robot6, pose, richer):
+    """``residual`` (W and M_r applied by directional derivatives of the loop closure) equals
+    M_r [q_a''; q_e''] + F from ``reduced`` to round-off (1e-12 of the largest term: the sums are
+    ordered differently), on the paper's model and the richer one (other layout, two mode sets)."""
+    robot = mdl.richer(robot6) if richer else robot6
+    ne = mdl.layout(robot).ne
+    rng = np.random.default_rng(11)
+    qe, qed = jnp.asarray(rng.normal(scale=1e-5, size=ne)), jnp.asarray(rng.normal(scale=1e-2, size=ne))
+    qad, qadd, qedd = jnp.array([1.5, -2.0]), jnp.array([30.0, 12.0]), jnp.asarray(rng.normal(scale=1e2, size=ne))
+    red = _reduced(robot, pose, qe, qad, qed)
+    terms = jnp.abs(red.mass) @ jnp.abs(jnp.concatenate([qadd, qedd])) + jnp.abs(red.force)
+    want = red.mass @ jnp.concatenate([qadd, qedd]) + red.force
+    got = jax.jit(mdl.residual)(robot, pose, qe, qad, qed, qadd, qedd)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12 * float(jnp.max(terms)))
+    assert float(jnp.max(jnp.abs(want))) > 1e-3 * float(jnp.max(terms))   # not a sum of cancelling terms only
+
+
 def test_inverse_then_direct_dynamics_roundtrip(robot6, pose):
     rng = np.random.default_rng(3)
     # elastic state of the size met along the paper's trajectories (tip deflections ~1e-5..1e-6 m)
