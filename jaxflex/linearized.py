@@ -134,8 +134,7 @@ def pose_coeffs(robot: Robot, qa, qa1, qa2) -> Coeffs:
     zero_e = jnp.zeros(ne)
 
     def residual(z, qad, qadd):
-        red = mdl.reduced(robot, qa, z[:ne], qad, z[ne:])
-        return red.mass[:, :2] @ qadd + red.force
+        return mdl.residual(robot, qa, z[:ne], qad, z[ne:], qadd, zero_e)
 
     def at(qad, qadd):
         z0 = jnp.zeros(2 * ne)
