@@ -406,7 +406,8 @@ def residual(robot: Robot, qa, qe, qad, qed, qadd, qedd) -> jax.Array:
     forming W or M_r: W v = [v; dq_p/dq_i v] and W^T g = g_i + (dq_p/dq_i)^T g_p are directional
     derivatives of the closed-form loop closure (two JVPs and one VJP instead of its (8, 2 + ne)
     Jacobian and the (N, N) x (N, 2 + ne) products); about 0.6x the cost of ``reduced``. The
-    linearized model's second-order remainder evaluates it (``linearized.remainder``)."""
+    linearization coefficients (``linearized.pose_coeffs``) and the second-order remainder
+    (``linearized.remainder``) evaluate it."""
     lay = layout(robot)
     qi = jnp.concatenate([qa, qe])
     qid = jnp.concatenate([qad, qed])
