@@ -216,19 +216,6 @@ def _frozen(c: SlowCoeffs, ds, dds, h, squarings) -> _Frozen:
     return _Frozen(phi, g0, g1, c.mass, linalg.inv(c.mass), k, cc, tq, tv, c.m_ae)
 
 
-def _outputs(fz: _Frozen, c: FastCoeffs, ds, dds, x, f, tr):
-    """e, e', e'', tau at one instant from the elastic state x = [q_e, q_e']."""
-    ne = fz.k.shape[0]
-    q, qd = x[:ne], x[ne:]
-    qdd = fz.minv @ (f - fz.c @ qd - fz.k @ q)
-    jx, jx1, jx2 = c.jx, c.jx1, c.jx2
-    e = jx @ q
-    ed = jx @ qd + ds * (jx1 @ q)
-    edd = jx @ qdd + 2.0 * ds * (jx1 @ qd) + (ds**2 * jx2 + dds * jx1) @ q
-    tau = tr + fz.tq @ q + fz.tv @ qd + fz.m_ae @ qdd
-    return jnp.stack([e, ed, edd, tau])
-
-
 def _recurrence(phi, x0, b, unroll, keep: bool = True):
     """x_{j+1} = phi x_j + b_j for the rows of b: returns (x_m, states x_0 .. x_{m-1}), or only x_m
     without ``keep``."""
@@ -245,9 +232,11 @@ def _per_interval(a, v):
     return jnp.einsum("cij,cmj->cmi", a, v.reshape((nc, -1) + v.shape[1:])).reshape(v.shape[:1] + a.shape[1:2])
 
 
-def _outputs_all(fz: _Frozen, c: FastCoeffs, ds, dds, x, f, tr):
-    """``_outputs`` at every fine node (N,) at once, the frozen maps (Nc, ...) held over each coarse
-    interval's m nodes (batched products: a few operations instead of a few per interval)."""
+def _outputs(fz: _Frozen, c: FastCoeffs, ds, dds, x, f, tr):
+    """e, e', e'', tau (N, 4, 2) at N nodes from the elastic states x = [q_e, q_e'] (N, 2 ne), with
+    the node coefficients c (leaves (N, ...)), ds, dds (N,), forcing f (N, ne) and rigid torque tr
+    (N, 2); the frozen maps fz (leaves (Nc, ...)) hold over Nc equal runs of N / Nc nodes (batched
+    products over all nodes: a few operations, not a few per coarse interval)."""
     ne = fz.k.shape[1]
     q, qd = x[:, :ne], x[:, ne:]
     mv = _per_interval
@@ -279,7 +268,7 @@ def _motion(x0, frozen, f_start, f_end, tr_start, fast_start, ds, dds, grid: Gri
     xs = xs.reshape(nc * m, -1)
     if states:
         return x_tf, xs
-    return x_tf, _outputs_all(frozen, fast_start, ds, dds, xs, f_start, tr_start)
+    return x_tf, _outputs(frozen, fast_start, ds, dds, xs, f_start, tr_start)
 
 
 def _jump_nodes(grid: Grid) -> np.ndarray:
@@ -425,11 +414,10 @@ def rollout(tables: Tables, samples: MotionSamples, tf, dwell, grid: Grid, robot
             robot, tables, x0, frozen, fast_start, fast_end, samples, grid, f_start, f_end, tr_start, tr_end)
     x_tf, ys = _motion(x0, frozen, f_start, f_end, tr_start, fast_start, samples.start[1],
                        samples.start[2], grid)
-    last = jax.tree_util.tree_map(lambda a: a[-1], frozen)
-    end_c = jax.tree_util.tree_map(lambda a: a[-1], fast_end)
-    ds_end, dds_end = samples.end[1][-1], samples.end[2][-1]
-    y_end = _outputs(last, end_c, ds_end, dds_end, x_tf, f_end[-1], tr_end[-1])
-    ys = jnp.concatenate([ys, y_end[None]], axis=0)
+    final = lambda a: a[-1:]                   # the left limit at tf: the last interval's maps
+    y_end = _outputs(jax.tree_util.tree_map(final, frozen), jax.tree_util.tree_map(final, fast_end),
+                     final(samples.end[1]), final(samples.end[2]), x_tf[None], final(f_end), final(tr_end))
+    ys = jnp.concatenate([ys, y_end], axis=0)
 
     # ---- dwell: motors hold the place pose, constant coefficients
     rest = interpolate(tables, tables.breaks[-1])
@@ -442,7 +430,10 @@ def rollout(tables: Tables, samples: MotionSamples, tf, dwell, grid: Grid, robot
     b_d = jnp.broadcast_to(fz_d.g0 @ f_d, (grid.dwell_steps, x_tf.shape[0]))
     x_end, xd_states = _recurrence(fz_d.phi, x_tf, b_d, grid.unroll)
     xd_states = jnp.concatenate([xd_states, x_end[None]], axis=0)
-    yd = jax.vmap(lambda xx: _outputs(fz_d, rest.fast(), zero, zero, xx, f_d, tr_d))(xd_states)
+    nd = xd_states.shape[0]
+    over_dwell = lambda a: jnp.broadcast_to(a, (nd,) + a.shape)
+    yd = _outputs(jax.tree_util.tree_map(lambda a: a[None], fz_d), jax.tree_util.tree_map(over_dwell, rest.fast()),
+                  jnp.zeros(nd), jnp.zeros(nd), xd_states, over_dwell(f_d), over_dwell(tr_d))
 
     ksym = 0.5 * (rest.k0 + rest.k0.T)
 
