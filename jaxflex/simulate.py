@@ -325,7 +325,6 @@ def _second_pass_forcing(robot, tables, x0, frozen, fast_start, fast_end, sample
        first-pass solution z1 = [q_e, q_e', q_e''] (``linearized.remainder``) at the nodes of
        ``_remainder_stencil``, linear in time in between, enters as forcing and torque."""
     nc, m = grid.coarse, grid.fine
-    n = nc * m
     ne = x0.shape[0] // 2
     x1_tf, x1 = _motion(x0, frozen, f_start, f_end, tr_start, fast_start, samples.start[1],
                         samples.start[2], grid, states=True)

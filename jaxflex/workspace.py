@@ -154,13 +154,10 @@ def workspace_shapes(robot: Robot, cycle: Cycle, spacing: float = 0.005) -> Work
                      origin=struct((2,)), axes=struct((2, 2)), step=struct((2,)))
 
 
-_weights = cubic_weights      # cubic Lagrange weights (4,) at t in [0, 3] (``linearized.cubic_weights``)
-
-
 @jax.custom_jvp
 def _bicubic(block, tu, tv):
     """sum_ij w_i(tu) w_j(tv) block[i, j, ...] for a (4, 4, ...) block of grid values."""
-    return jnp.tensordot(_weights(tu)[:, None] * _weights(tv)[None, :], block, axes=2)
+    return jnp.tensordot(cubic_weights(tu)[:, None] * cubic_weights(tv)[None, :], block, axes=2)
 
 
 def _bicubic_jvp(primals, tangents):
@@ -169,7 +166,7 @@ def _bicubic_jvp(primals, tangents):
     in the design gradient, whose tables are interpolated at every node of every model)."""
     block, tu, tv = primals
     dblock, dtu, dtv = tangents
-    (wu, su), (wv, sv) = (jax.jvp(_weights, (t,), (jnp.ones_like(t),)) for t in (tu, tv))
+    (wu, su), (wv, sv) = (jax.jvp(cubic_weights, (t,), (jnp.ones_like(t),)) for t in (tu, tv))
     out = jnp.tensordot(wu[:, None] * wv[None, :], block, axes=2)
     tangent = 0.0
     if not isinstance(dtu, SymbolicZero):

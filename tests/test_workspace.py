@@ -111,9 +111,10 @@ def test_bicubic_derivative_rule_equals_autodiff_of_the_interpolant():
     sum: forward and reverse derivatives in the cell coordinates and in the grid values, second
     derivatives in a coordinate, and under vmap with only the coordinates differentiated (how the
     design gradient uses it), each to 1e-13 of its scale."""
-    from jaxflex.workspace import _bicubic, _weights
+    from jaxflex.linearized import cubic_weights
+    from jaxflex.workspace import _bicubic
 
-    plain = lambda b, tu, tv: jnp.tensordot(_weights(tu)[:, None] * _weights(tv)[None, :], b, axes=2)
+    plain = lambda b, tu, tv: jnp.tensordot(cubic_weights(tu)[:, None] * cubic_weights(tv)[None, :], b, axes=2)
     rng = np.random.default_rng(5)
     block, tu, tv = jnp.asarray(rng.normal(size=(4, 4, 3, 2))), 1.3, 1.7
     np.testing.assert_allclose(_bicubic(block, tu, tv), plain(block, tu, tv), rtol=0, atol=1e-14)
