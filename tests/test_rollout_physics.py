@@ -11,7 +11,8 @@ All rollouts use the product's own default grid and the same compiled program (o
 model, ``LawEvaluator``), so the file pays one compilation of the fast model: its tests run on one
 xdist worker (one group), and as a group of several tests xdist schedules it among the first work
 units, so that the full-model run (the suite's longest single setup, about a minute) starts early
-instead of being the last thing a worker does while the other one idles.
+instead of being the last thing a worker does while the other one idles. The full-model test
+comes first in the file (the group runs in file order).
 """
 import jax
 import jax.numpy as jnp
@@ -61,6 +62,60 @@ def _motors_jit(robot, path, profile, tf, t):
     L = path.length
     x, xd, xdd, _ = task_from_arc(path, v.s * L, v.ds * L / tf, v.dds * L / tf**2, jnp.zeros(len(t)))
     return jax.vmap(lambda a, b, c: joint_motion(robot, a, b, c))(x, xd, xdd)
+
+
+# ---------------------------------------------------------------------------- the full nonlinear model
+
+
+@pytest.fixture(scope="module")
+def fast_and_full(setup):
+    """A faster Adept move than the paper's 6 kg case (tf = 0.3 s: twice its accelerations, deflections
+    up to 1.4 mm, so the second-order terms are larger) with a smooth law and a jerk-discontinuous one,
+    simulated by the fast model (default grid) and by the full nonlinear model: its exponential
+    integrator at 4e-5 s, twice its default step (2e-5 s, which agrees with RK4 at 1e-6 s within 2e-4
+    relative on the paper cases' metrics: ``tests/test_reference.py``). On these two runs the
+    metrics at 4e-5 s differ from those at 2e-5 s by at most 3e-5 relative (measured), a hundredth
+    of the tolerances below, and the run costs half the steps."""
+    from jaxflex.reference import reference_rollout
+
+    robot, _, path, grid = setup
+    tf, dwell, laws = 0.3, 0.03, ("poly7", "trap_1_8")
+    # the reference first: it needs none of the fast model's programs, which meanwhile the other xdist
+    # worker (the CLI tests' sweep) compiles into the session's shared compilation cache
+    ref = reference_rollout(robot, path, [make_profile(p) for p in laws], tf, dwell, dt=4e-5)
+    fast = [_series(robot, path, grid, law, tf=tf, dwell=dwell) for law in laws]
+    full = [jax.tree_util.tree_map(lambda a: np.asarray(a[i]), ref) for i in range(len(laws))]
+    return robot, path, tf, laws, fast, full
+
+
+def _at(t_new, t, y):
+    return np.stack([np.interp(t_new, t, y[:, j]) for j in range(y.shape[1])], -1)
+
+
+def test_fast_rollout_matches_the_full_nonlinear_model(fast_and_full):
+    """Against the full model: the end-effector error during the motion and over the dwell, the
+    elastic part of the motor torques (tau minus the rigid robot's, from the independent
+    Newton-Euler model) and the metrics. Measured: e within 0.10-0.15 % of its peak (the fast
+    model's output map e = J q_e is linear: its error grows like the deflection over the link
+    length, 1.4 mm / 0.38 m), the dwell within 0.03-0.12 % of its amplitude. A 5 % error in a
+    force, mass, stiffness or torque term of the linearization or the rollout moves these by
+    several percent."""
+    robot, path, tf, laws, fast, full = fast_and_full
+    for law, f, r in zip(laws, fast, full):
+        e_ref = _at(f.t, r.t, r.e)
+        assert np.abs(f.e - e_ref).max() < 5e-3 * np.abs(r.e).max(), (law, np.abs(f.e - e_ref).max())
+        amp = r.e_dwell - r.e_static[None]
+        d_ref = _at(f.t_dwell, r.t_dwell, amp)
+        assert np.abs(f.e_dwell - f.e_static[None] - d_ref).max() < 1e-2 * np.abs(amp).max(), law
+        qa, qad, qadd = _motors(robot, path, law, tf, jnp.asarray(f.t))
+        tau_rigid = np.asarray(jax.jit(jax.vmap(lambda a, b, c: rigid_torques(robot, a, b, c)))(qa, qad, qadd))
+        el_fast, el_full = f.tau - tau_rigid, _at(f.t, r.t, r.tau) - tau_rigid
+        assert np.abs(el_full).max() > 1e-3 * np.abs(tau_rigid).max()        # the elastic part is there
+        assert np.abs(el_fast - el_full).max() < 2e-2 * np.abs(el_full).max(), (law, np.abs(el_fast - el_full).max())
+        mf, mr = metrics(f), metrics(r)
+        for k in ("max_torque_nm", "max_deflection_mm", "residual_pos_mm", "residual_vel", "residual_acc_low",
+                  "dwell_residual_mm", "residual_energy"):
+            assert abs(float(mf[k]) / float(mr[k]) - 1) < 5e-3, (law, k, float(mf[k]), float(mr[k]))
 
 
 # ---------------------------------------------------------------------------------------------- metrics
@@ -217,55 +272,3 @@ def test_residual_vibration_decays_at_the_damping_ratio_of_the_first_mode(setup)
     slope = np.polyfit(t[peaks], np.log(amp[peaks]), 1)[0]
     zeta_fit = -slope / w1
     assert abs(zeta_fit / zeta - 1) < 0.02, zeta_fit
-
-
-# ---------------------------------------------------------------------------- the full nonlinear model
-
-
-@pytest.fixture(scope="module")
-def fast_and_full(setup):
-    """A faster Adept move than the paper's 6 kg case (tf = 0.3 s: twice its accelerations, deflections
-    up to 1.4 mm, so the second-order terms are larger) with a smooth law and a jerk-discontinuous one,
-    simulated by the fast model (default grid) and by the full nonlinear model: its exponential
-    integrator at 4e-5 s, twice its default step (2e-5 s, which agrees with RK4 at 1e-6 s within 2e-4
-    relative on the paper cases' metrics: ``tests/test_reference.py``). On these two runs the
-    metrics at 4e-5 s differ from those at 2e-5 s by at most 3e-5 relative (measured), a hundredth
-    of the tolerances below, and the run costs half the steps."""
-    from jaxflex.reference import reference_rollout
-
-    robot, _, path, grid = setup
-    tf, dwell, laws = 0.3, 0.03, ("poly7", "trap_1_8")
-    fast = [_series(robot, path, grid, law, tf=tf, dwell=dwell) for law in laws]
-    ref = reference_rollout(robot, path, [make_profile(p) for p in laws], tf, dwell, dt=4e-5)
-    full = [jax.tree_util.tree_map(lambda a: np.asarray(a[i]), ref) for i in range(len(laws))]
-    return robot, path, tf, laws, fast, full
-
-
-def _at(t_new, t, y):
-    return np.stack([np.interp(t_new, t, y[:, j]) for j in range(y.shape[1])], -1)
-
-
-def test_fast_rollout_matches_the_full_nonlinear_model(fast_and_full):
-    """Against the full model: the end-effector error during the motion and over the dwell, the
-    elastic part of the motor torques (tau minus the rigid robot's, from the independent
-    Newton-Euler model) and the metrics. Measured: e within 0.10-0.15 % of its peak (the fast
-    model's output map e = J q_e is linear: its error grows like the deflection over the link
-    length, 1.4 mm / 0.38 m), the dwell within 0.03-0.12 % of its amplitude. A 5 % error in a
-    force, mass, stiffness or torque term of the linearization or the rollout moves these by
-    several percent."""
-    robot, path, tf, laws, fast, full = fast_and_full
-    for law, f, r in zip(laws, fast, full):
-        e_ref = _at(f.t, r.t, r.e)
-        assert np.abs(f.e - e_ref).max() < 5e-3 * np.abs(r.e).max(), (law, np.abs(f.e - e_ref).max())
-        amp = r.e_dwell - r.e_static[None]
-        d_ref = _at(f.t_dwell, r.t_dwell, amp)
-        assert np.abs(f.e_dwell - f.e_static[None] - d_ref).max() < 1e-2 * np.abs(amp).max(), law
-        qa, qad, qadd = _motors(robot, path, law, tf, jnp.asarray(f.t))
-        tau_rigid = np.asarray(jax.jit(jax.vmap(lambda a, b, c: rigid_torques(robot, a, b, c)))(qa, qad, qadd))
-        el_fast, el_full = f.tau - tau_rigid, _at(f.t, r.t, r.tau) - tau_rigid
-        assert np.abs(el_full).max() > 1e-3 * np.abs(tau_rigid).max()        # the elastic part is there
-        assert np.abs(el_fast - el_full).max() < 2e-2 * np.abs(el_full).max(), (law, np.abs(el_fast - el_full).max())
-        mf, mr = metrics(f), metrics(r)
-        for k in ("max_torque_nm", "max_deflection_mm", "residual_pos_mm", "residual_vel", "residual_acc_low",
-                  "dwell_residual_mm", "residual_energy"):
-            assert abs(float(mf[k]) / float(mr[k]) - 1) < 5e-3, (law, k, float(mf[k]), float(mr[k]))
