@@ -57,6 +57,8 @@ def _end_effector_maps(robot, qa, qa1, qa2):
     return jx, jx1, jx2
 
 
+# one xdist group: the four nodes share one compiled full-model linearization (``_model_linearization``)
+@pytest.mark.xdist_group("model-linearization")
 @pytest.mark.parametrize("node", [3, 30, 80, 130])
 def test_coefficients_are_the_full_models_linearization_at_any_speed(setup, node):
     """At table nodes on the first line, first blend, traverse and second blend, for a path speed
