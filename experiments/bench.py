@@ -139,7 +139,7 @@ def compute(repeats: int = 5, quick: bool = False) -> dict:
              "per_rollout_ms": 1e3 * res.run_s / 24, "steps_per_rollout": g.steps + g.dwell_steps,
              "steps_per_s": steps / res.run_s, "grid": g._asdict()}
     print(f"  tables (3 blends x 2 payloads, compile included) {res.tables_s:.1f} s")
-    print(f"  rollout program: compile {res.compile_s:.1f} s, run {res.run_s * 1e3:.0f} ms "
+    print(f"  rollout programs: compile {res.compile_s:.1f} s, run {res.run_s * 1e3:.0f} ms "
           f"({sweep['per_rollout_ms']:.1f} ms per rollout, {sweep['steps_per_s']:.3g} steps/s)", flush=True)
     print("the optimizer's value and gradient (6 kg, tf 0.43 s, one model, reverse mode) ...", flush=True)
     grad = gradient_bench(repeats, quick=quick)

@@ -1,14 +1,15 @@
-"""The evaluation engine: every rollout of the library through one compiled program.
+"""The evaluation engine: every rollout of the library through one set of compiled programs.
 
 A rollout (``simulate.rollout``) of one trajectory on one model is compiled once per grid, model
-order (first or second) and mode counts, and that single program serves every caller: the paper
+order (first or second) and mode counts (the second-order model as three programs run one after
+the other: first pass, remainder, second pass; see ``_first``), and that one set serves every caller: the paper
 sweep, the optimization studies' paper combinations, baselines and evaluations, the cycle-time
 study, the benchmarks. Batches are run one trajectory at a time (on a 2-core CPU a vmapped batch
 is no faster: 24 rollouts take ~1.0 s either way), so no batch size ever costs a new compilation,
 from a few threads at once (``jaxflex.parallel``: ~0.7x the time on 2 cores);
 the metrics come from a small program of their own (``metrics.batch_metrics``).
 
-The rollout program is a hot program: it compiles with ``jaxflex.compiled.HOT_LOOP`` whatever
+The rollout programs are hot programs: they compile with ``jaxflex.compiled.HOT_LOOP`` whatever
 XLA_FLAGS say (LLVM level 1 runs it as fast as level 3 and compiles it sooner).
 
 ``run`` validates nothing: callers check their inputs before building tables (SPEC 8).
@@ -31,21 +32,52 @@ from jaxflex.parallel import host_map
 from jaxflex.path import Path
 from jaxflex.profiles import Profile
 from jaxflex.robot import Robot
-from jaxflex.simulate import Grid, MotionSamples, Series, rollout, sample_motion
+from jaxflex.simulate import (Grid, MotionSamples, Prepared, Series, add_remainders, first_pass, prepare,
+                              remainders, rollout, sample_motion, second_pass)
 
 
-@functools.partial(jax.jit, static_argnames=("grid", "second_order"), compiler_options=HOT_LOOP)
-def _run(tables: Tables, samples: MotionSamples, tf, dwell, robot: Robot, grid: Grid, second_order: bool):
-    return rollout(tables, samples, tf, dwell, grid, robot if second_order else None)
+@functools.partial(jax.jit, static_argnames=("grid",), compiler_options=HOT_LOOP)
+def _linear(tables: Tables, samples: MotionSamples, tf, dwell, grid: Grid):
+    return rollout(tables, samples, tf, dwell, grid)
+
+
+# The second-order rollout runs as three programs: the first pass, the full model's remainder at
+# its sites, the second pass. The same operations as ``simulate.rollout`` (the gradients go through
+# that one function), but inside one program the remainder's thousand-odd small operations cost
+# about twice their own time (a rollout of the default grid: 36.6 ms of wall time and 54 ms of CPU
+# as one program, 25.9 ms and 31 ms with the remainder in a program of its own; the same e(t) to
+# 8e-15 relative).
+@functools.partial(jax.jit, static_argnames=("grid",), compiler_options=HOT_LOOP)
+def _first(tables: Tables, samples: MotionSamples, tf, grid: Grid):
+    prep = prepare(tables, samples, tf, grid)
+    forcing, sites = first_pass(tables, prep, samples, grid)
+    return prep._replace(forcing=forcing), sites
+
+
+_remainders = jax.jit(remainders, compiler_options=HOT_LOOP)
+
+
+@functools.partial(jax.jit, static_argnames=("grid",), compiler_options=HOT_LOOP)
+def _second(tables: Tables, prep: Prepared, r_all, samples: MotionSamples, tf, dwell, grid: Grid):
+    return second_pass(tables, prep._replace(forcing=add_remainders(prep.forcing, r_all, grid)), samples, tf,
+                       dwell, grid)
+
+
+def cache_size() -> int:
+    """Executables compiled by the engine's rollout programs in this process (every shape and grid)."""
+    return sum(p._cache_size() for p in (_linear, _first, _remainders, _second))
 
 
 def run(tables: Tables, samples: MotionSamples, tf, dwell, robot: Robot, grid: Grid,
         second_order: bool = True) -> Series:
     """One rollout (motion over [0, tf] [s], dwell [s]) of the model ``robot`` whose path tables are
-    ``tables``, through the shared compiled program. ``second_order`` (default): the full model's
+    ``tables``, through the shared compiled programs. ``second_order`` (default): the full model's
     second-order remainder is added (``simulate.rollout``); False: the linearized model."""
-    return _run(tables, samples, jnp.asarray(tf, dtype=float), jnp.asarray(dwell, dtype=float), robot, grid,
-                bool(second_order))
+    tf, dwell = jnp.asarray(tf, dtype=float), jnp.asarray(dwell, dtype=float)
+    if not second_order:
+        return _linear(tables, samples, tf, dwell, grid)
+    prep, sites = _first(tables, samples, tf, grid)
+    return _second(tables, prep, _remainders(robot, sites), samples, tf, dwell, grid)
 
 
 def run_many(jobs: Sequence[tuple], grid: Grid, second_order: bool = True) -> Series:
@@ -67,8 +99,8 @@ class LawEvaluator:
     """Metrics of any motion law along one path on a set of models (second-order fast model).
 
     The tables are built once per model; every law (paper, shaped, input-shaped, Ruckig samples) on
-    every model runs through the evaluation engine's one compiled program (``jaxflex.engine``), one
-    model at a time, so evaluators of any model set share it. ``keep=False``: the tables are not
+    every model runs through the evaluation engine's compiled programs (``jaxflex.engine``), one
+    model at a time, so evaluators of any model set share them. ``keep=False``: the tables are not
     kept but built again at every call, in groups of ``STREAM_MODELS`` models used for every law of
     the call (``metrics_many``) and dropped (for a large set: the memory of a few models' tables
     instead of all of them). ``chunk`` is accepted for compatibility (it used to set the batch size

@@ -14,7 +14,7 @@ dispersion: the kHz axial modes keep their exact frequency and amplitude at any 
 effector error, its derivatives, motor torques) are evaluated at every fine node. The run starts
 from the static equilibrium at the pick pose.
 
-A second pass (``_second_pass_forcing``, on by default) corrects the first along its solution:
+A second pass (``first_pass``, ``add_remainders``, on by default) corrects the first along its solution:
 (1) the frozen coefficients jump at every interval boundary and each jump kicks the undamped kHz
 modes, an artefact that does not shrink with the interval and dominated |e''| at one instant; the
 second pass adds the force of the coefficients' variation (linear in time between the boundary
@@ -310,9 +310,53 @@ def _remainder_stencil(grid: Grid):
     return right, plans
 
 
-def _second_pass_forcing(robot, tables, x0, frozen, fast_start, fast_end, samples, grid, f_start, f_end,
-                         tr_start, tr_end):
-    """Forcing and torques of the second pass of ``rollout`` (corrections from a first pass).
+class Forcing(NamedTuple):
+    """Elastic forcing f [N] (N, ne) and motor torques tau_r [N m] (N, 2) at the start (right limit)
+    and end (left limit) of every fine step."""
+
+    f_start: jax.Array
+    f_end: jax.Array
+    tr_start: jax.Array
+    tr_end: jax.Array
+
+
+class Prepared(NamedTuple):
+    """What both passes of ``rollout`` share: the frozen maps per coarse interval, the fast
+    coefficients at the fine nodes (start and end of every step), the forcing and the initial state."""
+
+    frozen: _Frozen
+    fast_start: FastCoeffs
+    fast_end: FastCoeffs
+    forcing: Forcing
+    x0: jax.Array
+
+
+def prepare(tables: Tables, samples: MotionSamples, tf, grid: Grid) -> Prepared:
+    """The coefficients of ``rollout`` over [0, tf]: frozen per coarse interval, forcing and output
+    maps per fine node, and the static equilibrium at the pick pose (s = 0, at rest)."""
+    h = tf / grid.steps
+    s_mid, ds_mid, dds_mid = samples.mid
+    slow = _interp(tables.slow(), s_mid)
+    frozen = jax.vmap(lambda c, a, b: _frozen(c, a, b, h, grid.squarings))(slow, ds_mid, dds_mid)
+    # the arc length is continuous: the end of step j is the start of step j + 1 (s from the other
+    # side's formula differs by round-off at most), so the N + 1 fine nodes are interpolated once
+    fast_nodes = _interp(tables.fast(), jnp.concatenate([samples.start[0], samples.end[0][-1:]]))
+    fast_start = jax.tree_util.tree_map(lambda a: a[:-1], fast_nodes)
+    fast_end = jax.tree_util.tree_map(lambda a: a[1:], fast_nodes)
+    f_start, tr_start = jax.vmap(FastCoeffs.forcing)(fast_start, *samples.start[1:])
+    f_end, tr_end = jax.vmap(FastCoeffs.forcing)(fast_end, *samples.end[1:])
+    rest0 = interpolate(tables, tables.breaks[0])
+    q0 = linalg.solve(rest0.k0, rest0.f0)
+    x0 = jnp.concatenate([q0, jnp.zeros_like(q0)])
+    return Prepared(frozen, fast_start, fast_end, Forcing(f_start, f_end, tr_start, tr_end), x0)
+
+
+def first_pass(tables: Tables, prep: Prepared, samples: MotionSamples, grid: Grid):
+    """The first pass of ``rollout`` and the corrections of the second that follow from it.
+
+    Returns (forcing, sites): ``prep.forcing`` with, if ``grid.continuous``, the variation of the
+    coefficients within each coarse interval along the first-pass solution (1. below), and the
+    inputs of ``remainders`` at the nodes of ``_remainder_stencil`` (2.).
 
     1. Continuous coefficients: the first pass freezes M, C, K over each coarse interval, so they
        jump at its ends; every jump kicks the undamped kHz modes (an artefact that does not
@@ -321,12 +365,15 @@ def _second_pass_forcing(robot, tables, x0, frozen, fast_start, fast_end, sample
        between the coarse boundary values (right limit at the start, left limit at the end of every
        interval), evaluated along the first-pass solution at every fine node: the effective
        coefficients are then continuous and accurate to O(H^2).
-    2. With ``robot``, the full model's second-order remainder R(z1) - R(0) - R'(0) z1 along the
-       first-pass solution z1 = [q_e, q_e', q_e''] (``linearized.remainder``) at the nodes of
-       ``_remainder_stencil``, linear in time in between, enters as forcing and torque."""
+    2. The full model's second-order remainder R(z1) - R(0) - R'(0) z1 along the first-pass
+       solution z1 = [q_e, q_e', q_e''] is sampled at the nodes of ``_remainder_stencil``
+       (``remainders``) and enters, linear in time in between, as forcing and torque
+       (``add_remainders``)."""
     nc, m = grid.coarse, grid.fine
+    frozen, fast_start, fast_end, forcing, x0 = prep
+    f_start, f_end = forcing.f_start, forcing.f_end
     ne = x0.shape[0] // 2
-    x1_tf, x1 = _motion(x0, frozen, f_start, f_end, tr_start, fast_start, samples.start[1],
+    x1_tf, x1 = _motion(x0, frozen, f_start, f_end, forcing.tr_start, fast_start, samples.start[1],
                         samples.start[2], grid, states=True)
     mv = _per_interval
     x1_end = jnp.concatenate([x1[1:], x1_tf[None]])                   # state at the end of every step
@@ -354,26 +401,34 @@ def _second_pass_forcing(robot, tables, x0, frozen, fast_start, fast_end, sample
         return out
 
     if grid.continuous:
-        f_start = f_start - corr(tau[:-1], x1, qdd1_start)
-        f_end = f_end - corr(tau[1:], x1_end, qdd1_end)
-    if robot is None:
-        return f_start, f_end, tr_start, tr_end
+        forcing = forcing._replace(f_start=f_start - corr(tau[:-1], x1, qdd1_start),
+                                   f_end=f_end - corr(tau[1:], x1_end, qdd1_end))
 
-    # ---- 2. second-order remainder of the full model
-    right, ((lo_s, hi_s, w_s), (lo_e, hi_e, w_e)) = _remainder_stencil(grid)
-    jumps = _jump_nodes(grid)
-    before = jumps - 1                                     # last fine step before each jump node
-    x_left = x1_end[before]
-    rem = jax.vmap(lambda qa, q1, q2, ds, dds, x, qdd: remainder(robot, qa, q1, q2, ds, dds, x, qdd))
+    # ---- 2. where the second-order remainder is sampled: right limits at the stencil's nodes and
+    # left limits at the jump nodes (one model evaluation site each)
+    right, _ = _remainder_stencil(grid)
+    before = _jump_nodes(grid) - 1                         # last fine step before each jump node
     cat = lambda a, b: jnp.concatenate([a[right], b[before]])
-    r_all = rem(cat(fast_start.qa, fast_end.qa), cat(fast_start.qa1, fast_end.qa1),
-                cat(fast_start.qa2, fast_end.qa2), cat(samples.start[1], samples.end[1]),
-                cat(samples.start[2], samples.end[2]), jnp.concatenate([x1[right], x_left]),
-                jnp.concatenate([qdd1_start[right], qdd1_end[before]]))   # one model evaluation site
+    sites = (cat(fast_start.qa, fast_end.qa), cat(fast_start.qa1, fast_end.qa1), cat(fast_start.qa2, fast_end.qa2),
+             cat(samples.start[1], samples.end[1]), cat(samples.start[2], samples.end[2]),
+             jnp.concatenate([x1[right], x1_end[before]]), jnp.concatenate([qdd1_start[right], qdd1_end[before]]))
+    return forcing, sites
+
+
+def remainders(robot, sites) -> jax.Array:
+    """The full model's second-order remainder (``linearized.remainder``) at the sites of
+    ``first_pass``: (S, 2 + ne), rows [:, :2] motor torques [N m], [:, 2:] elastic forces [N]."""
+    return jax.vmap(lambda qa, q1, q2, ds, dds, x, qdd: remainder(robot, qa, q1, q2, ds, dds, x, qdd))(*sites)
+
+
+def add_remainders(forcing: Forcing, r_all, grid: Grid) -> Forcing:
+    """``forcing`` with the remainders at the sites (``remainders``), linear in time between the
+    samples of one jump-free segment (``_remainder_stencil``)."""
+    _, ((lo_s, hi_s, w_s), (lo_e, hi_e, w_e)) = _remainder_stencil(grid)
     lin = lambda lo, hi, w: r_all[lo] * (1.0 - w)[:, None] + r_all[hi] * w[:, None]
     at_start, at_end = lin(lo_s, hi_s, w_s), lin(lo_e, hi_e, w_e)
-    return (f_start - at_start[:, 2:], f_end - at_end[:, 2:], tr_start + at_start[:, :2],
-            tr_end + at_end[:, :2])
+    return Forcing(forcing.f_start - at_start[:, 2:], forcing.f_end - at_end[:, 2:],
+                   forcing.tr_start + at_start[:, :2], forcing.tr_end + at_end[:, :2])
 
 
 def rollout(tables: Tables, samples: MotionSamples, tf, dwell, grid: Grid, robot=None) -> Series:
@@ -388,34 +443,29 @@ def rollout(tables: Tables, samples: MotionSamples, tf, dwell, grid: Grid, robot
     single pass of the plain linearized model. The dwell keeps the linear equations (its remainder
     is of the order of the static sag times the residual amplitude, below 1e-3 of it).
     """
+    prep = prepare(tables, samples, tf, grid)
+    if robot is not None or grid.continuous:
+        forcing, sites = first_pass(tables, prep, samples, grid)
+        if robot is not None:
+            forcing = add_remainders(forcing, remainders(robot, sites), grid)
+        prep = prep._replace(forcing=forcing)
+    return second_pass(tables, prep, samples, tf, dwell, grid)
+
+
+def second_pass(tables: Tables, prep: Prepared, samples: MotionSamples, tf, dwell, grid: Grid) -> Series:
+    """The last pass of ``rollout`` with the forcing of ``prep`` (corrected by ``first_pass`` and
+    ``add_remainders``), then the dwell; the outputs at every node as a ``Series``."""
     n = grid.steps
     h = tf / n
     hd = dwell / grid.dwell_steps
-    # ---- coefficients: frozen per coarse interval, forcing and output maps per fine node
-    s_mid, ds_mid, dds_mid = samples.mid
-    slow = _interp(tables.slow(), s_mid)
-    frozen = jax.vmap(lambda c, a, b: _frozen(c, a, b, h, grid.squarings))(slow, ds_mid, dds_mid)
-    # the arc length is continuous: the end of step j is the start of step j + 1 (s from the other
-    # side's formula differs by round-off at most), so the N + 1 fine nodes are interpolated once
-    fast_nodes = _interp(tables.fast(), jnp.concatenate([samples.start[0], samples.end[0][-1:]]))
-    fast_start = jax.tree_util.tree_map(lambda a: a[:-1], fast_nodes)
-    fast_end = jax.tree_util.tree_map(lambda a: a[1:], fast_nodes)
-    f_start, tr_start = jax.vmap(FastCoeffs.forcing)(fast_start, *samples.start[1:])
-    f_end, tr_end = jax.vmap(FastCoeffs.forcing)(fast_end, *samples.end[1:])
-
-    # ---- initial static equilibrium at the pick pose (s = 0, at rest)
-    rest0 = interpolate(tables, tables.breaks[0])
-    q0 = linalg.solve(rest0.k0, rest0.f0)
-    x0 = jnp.concatenate([q0, jnp.zeros_like(q0)])
-    ne = q0.shape[0]
-    if robot is not None or grid.continuous:
-        f_start, f_end, tr_start, tr_end = _second_pass_forcing(
-            robot, tables, x0, frozen, fast_start, fast_end, samples, grid, f_start, f_end, tr_start, tr_end)
-    x_tf, ys = _motion(x0, frozen, f_start, f_end, tr_start, fast_start, samples.start[1],
+    frozen, fast_start, fast_end, forcing, x0 = prep
+    ne = x0.shape[0] // 2
+    x_tf, ys = _motion(x0, frozen, forcing.f_start, forcing.f_end, forcing.tr_start, fast_start, samples.start[1],
                        samples.start[2], grid)
     final = lambda a: a[-1:]                   # the left limit at tf: the last interval's maps
     y_end = _outputs(jax.tree_util.tree_map(final, frozen), jax.tree_util.tree_map(final, fast_end),
-                     final(samples.end[1]), final(samples.end[2]), x_tf[None], final(f_end), final(tr_end))
+                     final(samples.end[1]), final(samples.end[2]), x_tf[None], final(forcing.f_end),
+                     final(forcing.tr_end))
     ys = jnp.concatenate([ys, y_end], axis=0)
 
     # ---- dwell: motors hold the place pose, constant coefficients

@@ -1,5 +1,5 @@
 """The paper sweep: all blend x profile combinations for several cases (payload, tf), every rollout
-through the evaluation engine's one compiled program (``jaxflex.engine``), metrics included.
+through the evaluation engine's compiled programs (``jaxflex.engine``), metrics included.
 
 Tables (linearization coefficients along each path, per payload) are built first; then every
 rollout (blend x profile x case) runs, and the metrics of all of them in a small program.

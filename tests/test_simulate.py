@@ -45,14 +45,14 @@ GRID = default_grid(robot_preset("default"), [0.43], 0.1)      # the product's g
 
 
 def test_no_recompilation_on_new_trajectory_values(setup):
-    """New laws, motion times, dwell times and models reuse the engine's one program."""
+    """New laws, motion times, dwell times and models reuse the engine's programs."""
     robot, path, tables = setup
     a = _run(tables, path, "poly7", 0.43, GRID, robot=robot)
-    before = engine._run._cache_size()
+    before = engine.cache_size()
     b = _run(tables, path, "trap_1_8", 0.40, GRID, dwell=0.2, robot=robot.replace(payload=5.0, young=71e9))
     c = engine.run(tables, sample_motion(path.length, shaped(jnp.asarray([1.0, 2.0, 0.5])), 0.3, GRID), 0.3, 0.1,
                    robot, GRID)
-    assert engine._run._cache_size() == before        # same shapes and grid: no new executable
+    assert engine.cache_size() == before        # same shapes and grid: no new executable
     assert not np.allclose(np.asarray(a.e), np.asarray(b.e)) and not np.allclose(np.asarray(a.e), np.asarray(c.e))
 
 
