@@ -5,7 +5,7 @@ order (first or second) and mode counts (the second-order model as three program
 the other: first pass, remainder, second pass; see ``_first``), and that one set serves every caller: the paper
 sweep, the optimization studies' paper combinations, baselines and evaluations, the cycle-time
 study, the benchmarks. Batches are run one trajectory at a time (on a 2-core CPU a vmapped batch
-is no faster: 24 rollouts take ~1.0 s either way), so no batch size ever costs a new compilation,
+was no faster: 24 rollouts took ~1.0 s either way, measured with the single-program rollout), so no batch size ever costs a new compilation,
 from a few threads at once (``jaxflex.parallel``: ~0.7x the time on 2 cores);
 the metrics come from a small program of their own (``metrics.batch_metrics``).
 
@@ -44,9 +44,9 @@ def _linear(tables: Tables, samples: MotionSamples, tf, dwell, grid: Grid):
 # The second-order rollout runs as three programs: the first pass, the full model's remainder at
 # its sites, the second pass. The same operations as ``simulate.rollout`` (the gradients go through
 # that one function), but inside one program the remainder's thousand-odd small operations cost
-# about twice their own time (a rollout of the default grid: 36.6 ms of wall time and 54 ms of CPU
-# as one program, 25.9 ms and 31 ms with the remainder in a program of its own; the same e(t) to
-# 8e-15 relative).
+# about twice their own time (a rollout of the default grid, minimum of 40 runs on 2 cores: 36.6 ms
+# of wall time and 54 ms of CPU as one program, 20.7 ms and 29 ms as these three; the same e(t) to
+# 5e-15 relative).
 @functools.partial(jax.jit, static_argnames=("grid",), compiler_options=HOT_LOOP)
 def _first(tables: Tables, samples: MotionSamples, tf, grid: Grid):
     prep = prepare(tables, samples, tf, grid)
