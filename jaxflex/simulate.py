@@ -276,6 +276,7 @@ def _jump_nodes(grid: Grid) -> np.ndarray:
     return np.arange(1, 9) * (grid.coarse // 8) * grid.fine
 
 
+@functools.lru_cache(maxsize=32)
 def _remainder_stencil(grid: Grid):
     """Static sampling and interpolation plan of the second-order remainder.
 
@@ -284,7 +285,8 @@ def _remainder_stencil(grid: Grid):
     the last is tf). Between consecutive samples of one jump-free segment it is linear in time.
     Returns the right-limit sample nodes (S,), and for the start and the end of every fine step
     (N,) the indices of the two bracketing samples in [right samples, left samples] and the weight
-    of the second."""
+    of the second. Cached per grid (``first_pass`` and ``add_remainders`` both read it, in separate
+    programs of the engine); the arrays are read only."""
     nc, m, r = grid.coarse, grid.fine, max(1, min(grid.remainder_points, grid.fine))
     offsets = np.unique(np.round(np.arange(r) * m / r).astype(int))
     right = (np.arange(nc)[:, None] * m + offsets[None, :]).ravel()
