@@ -329,9 +329,9 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, out=None, verify=False, 
 
 
 def config_record(config: StudyConfig) -> dict:
-    """The study configuration as JSON (the box as its fields; no checkpoint or initial design)."""
+    """The study configuration as JSON (the box as its fields; no checkpoint, memo or initial design)."""
     return {f.name: (dataclasses.asdict(getattr(config, f.name)) if f.name == "box" else getattr(config, f.name))
-            for f in dataclasses.fields(config) if f.name not in ("init", "checkpoint")}
+            for f in dataclasses.fields(config) if f.name not in ("init", "checkpoint", "memo")}
 
 
 def run(preset="default", payloads=(6.0,), tf=0.43, out=None, json_path=None, verify=False, **study) -> dict:

@@ -163,6 +163,9 @@ def _optimization(out: Path, quick: bool, key: dict, vib: dict | None = None) ->
     # share its compiled programs: every study on the same grid and model count compiles once.
     isolated = (lambda fn, **kw: fn(**kw)) if quick else run_isolated
     grid = default_grid(robot_preset("default"), [0.43], 0.1)
+    # finished optimizations by their inputs: the cycle-time study's design at tf_ref is the 6 kg
+    # study's (the same models, scales, start and steps), which it loads instead of running again
+    memo = out / "optimizations"
     res = {"cases": [], "quick": quick}
     # quick: the 6 kg case only (a smoke run of every step; the design for both payloads would also
     # compile a program of its own)
@@ -173,7 +176,7 @@ def _optimization(out: Path, quick: bool, key: dict, vib: dict | None = None) ->
                         lambda: isolated(opt.compute, payloads=payloads, tf=tf, steps=steps, out=str(d),
                                          grid=grid, train="nominal" if quick else train, n_coef=n_coef,
                                          verify=not quick, box_samples=4 if quick else 200,
-                                         richer_modes=1 if quick else 3),
+                                         richer_modes=1 if quick else 3, memo=str(memo)),
                         f"optimization {name} kg")
         res["cases"].append({"dir": d.relative_to(out).as_posix(), "text": opt.text(rec), "record": rec})
         if not quick:
@@ -181,7 +184,8 @@ def _optimization(out: Path, quick: bool, key: dict, vib: dict | None = None) ->
     tfs = (0.43, 0.37) if quick else (0.43, 0.40, 0.37, 0.34, 0.31)
     ct = resumable(out / "cycle_time" / "study.json", key,
                    lambda: isolated(opt.run_cycle_time, payload=6.0, tf_ref=0.43, tfs=tfs, steps=steps,
-                                    train="nominal" if quick else "box", out=str(out / "cycle_time")),
+                                    train="nominal" if quick else "box", out=str(out / "cycle_time"),
+                                    memo=str(memo)),
                    "cycle-time study")
     res["cycle_time"] = {"dir": "cycle_time", "text": opt.cycle_time_text(ct), "record": ct}
     paper = None if vib is None else paper_residuals(vib)

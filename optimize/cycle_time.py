@@ -129,7 +129,7 @@ def cycle_time_study(problem: Problem, tfs: Sequence[float] = (0.43, 0.40, 0.37,
         result = train_design(models, cycle, float(tf), dwell, grid, scales, params, steps=steps,
                               learning_rate=learning_rate, progress=progress, label=f"design tf={tf:g}",
                               workspaces=workspaces, power=config.robust_power, order=config.law_order,
-                              blend=config.blend)
+                              blend=config.blend, memo=config.memo)
         params = result.params
         x = jax.tree_util.tree_map(np.asarray, decode(cycle, params))
         path = design_path(cycle, x, config.blend)

@@ -56,14 +56,14 @@ class OptResult(NamedTuple):
     times: tuple = ()
 
 
-def _save(path: Path, params, opt_state, history, times, step, best, best_value):
+def _save(path: Path, params, opt_state, history, times, step, best, best_value, stopped: str = ""):
     leaves = {f"p{i}": np.asarray(v) for i, v in enumerate(jax.tree_util.tree_leaves(params))}
     leaves.update({f"s{i}": np.asarray(v) for i, v in enumerate(jax.tree_util.tree_leaves(opt_state))})
     leaves.update({f"b{i}": np.asarray(v) for i, v in enumerate(jax.tree_util.tree_leaves(best))})
     tmp = path.with_name(path.name + f".tmp{os.getpid()}.npz")
     width = len(history[0]) if history else 2
     np.savez(tmp, history=np.asarray(history, dtype=float).reshape(-1, width), times=np.asarray(times, dtype=float),
-             step=step, best_value=best_value, **leaves)
+             step=step, best_value=best_value, stopped=stopped, **leaves)
     os.replace(tmp, path)
 
 
@@ -74,6 +74,50 @@ def _load(path: Path, params, opt_state):
         [jnp.asarray(z[f"{tag}{i}"]) for i in range(len(jax.tree_util.tree_leaves(tree)))])
     return (rebuild(params, "p"), rebuild(opt_state, "s"), [tuple(r) for r in z["history"].tolist()],
             z["times"].tolist(), int(z["step"]), rebuild(params, "b"), float(z["best_value"]))
+
+
+def _stopped(path: Path) -> str:
+    """Why the run saved at ``path`` stopped ("" while it runs, or for a checkpoint of an older version)."""
+    z = np.load(path)
+    return str(z["stopped"]) if "stopped" in z.files else ""
+
+
+@functools.lru_cache(maxsize=1)
+def _code_digest() -> str:
+    """A digest of the library's source (``jaxflex`` with ``jaxflex.optimize``) and of the JAX version:
+    a finished optimization is reused (``OptimizerConfig.memo``) only by the code that ran it."""
+    import jaxflex
+    from jaxflex import optimize
+
+    h = hashlib.sha1(jax.__version__.encode())
+    for root in sorted({Path(jaxflex.__file__).parent, Path(optimize.__file__).parent}):
+        for src in sorted(root.rglob("*.py")):
+            h.update(str(src.relative_to(root)).encode())
+            h.update(src.read_bytes())
+    return h.hexdigest()
+
+
+def fingerprint(f, params0, args, config: "OptimizerConfig") -> str:
+    """A digest of everything that determines ``minimize(f, params0, args, config)``'s result: the
+    objective (a frozen dataclass instance such as ``study.DesignObjective``: its class and fields),
+    the start, every array of ``args`` (values, shapes and dtypes), the schedule and stopping rules,
+    and the code (``_code_digest``). Raises ValueError for another kind of objective (a function's
+    name does not say what it computes)."""
+    if not (dataclasses.is_dataclass(f) and not isinstance(f, type) and f.__dataclass_params__.frozen):
+        raise ValueError("a memo of optimizations needs an objective that a frozen dataclass instance describes "
+                         f"(e.g. jaxflex.optimize.study.DesignObjective), got {f!r}")
+    h = hashlib.sha1(_code_digest().encode())
+    c = config
+    h.update(repr((type(f).__module__, type(f).__qualname__, f, c.steps, float(c.learning_rate), c.decay,
+                   c.patience, float(c.rel_tol), c.target, c.mode)).encode())
+    for tree in (params0, args):
+        leaves, treedef = jax.tree_util.tree_flatten(tree)
+        h.update(repr(treedef).encode())
+        for leaf in leaves:
+            a = np.ascontiguousarray(np.asarray(leaf))
+            h.update(repr((a.shape, a.dtype.str)).encode())
+            h.update(a.tobytes())
+    return h.hexdigest()
 
 
 DECAY_FLOOR = 0.1     # the cosine schedule ends at this fraction of the learning rate
@@ -198,6 +242,7 @@ class OptimizerConfig:
     progress: bool = True
     label: str = "optimize"
     monitor: Callable | None = None
+    memo: str | os.PathLike | None = None
 
 
 def minimize(f: Callable, params0, args: tuple = (), config: OptimizerConfig = OptimizerConfig()) -> OptResult:
@@ -224,16 +269,23 @@ def minimize(f: Callable, params0, args: tuple = (), config: OptimizerConfig = O
     params, state = params0, _optimizer().init(params0)
     history, times, step, best, best_value, best_aux = [], [], 0, params0, np.inf, None
     ckpt = Path(checkpoint) if checkpoint else None
-    resumed = ckpt is not None and ckpt.exists()
+    memo = Path(c.memo) / f"{fingerprint(f, params0, args, c)}.npz" if c.memo else None
+    recalled = memo is not None and memo.exists()
+    resumed = recalled or (ckpt is not None and ckpt.exists())
     if resumed:
-        params, state, history, times, step, best, best_value = _load(ckpt, params0, state)
+        params, state, history, times, step, best, best_value = _load(memo if recalled else ckpt, params0, state)
     bar = Progress(label, total=steps, unit="step", enabled=progress, start=step)
-    if resumed:
+    if recalled:
+        stopped_at = _stopped(memo)
+        bar.say(f"the same optimization finished before ({memo.name[:12]}): {step} steps, best {best_value:.4g}")
+    elif resumed:
         bar.say(f"resumed at step {step} (best {best_value:.4g})")
     offset = times[-1] if times else 0.0
     started, last_gain, stopped = time.perf_counter(), step, "steps"
     rate = schedule(steps, float(learning_rate), decay)        # built once, evaluated per step
-    while step < steps:
+    if recalled:
+        stopped = stopped_at or stopped
+    while step < steps and not recalled:
         # always a strongly typed float64 scalar: a change of type would retrace the update
         lr = jnp.asarray(rate(step), dtype=jnp.float64)
         if not bar.counting:       # the first step of this run: compiles the gradient unless done before
@@ -265,7 +317,10 @@ def minimize(f: Callable, params0, args: tuple = (), config: OptimizerConfig = O
             break
     bar.close(f"stopped: {stopped}, best {best_value:.4g}")
     if ckpt:
-        _save(ckpt, params, state, history, times, step, best, best_value)
+        _save(ckpt, params, state, history, times, step, best, best_value, stopped)
+    if memo is not None and not recalled:
+        memo.parent.mkdir(parents=True, exist_ok=True)
+        _save(memo, params, state, history, times, step, best, best_value, stopped)
     if best_aux is None:                       # resumed at the end: evaluate the best once
         (best_value, best_aux), _ = value_and_grad(best, args, f=f, mode=mode, hot=hot)
         best_value = float(best_value)

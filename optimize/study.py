@@ -301,7 +301,9 @@ class StudyConfig:
     of the box (seed ``box_seed``) on which every trajectory is evaluated after training (the
     "box" evaluation set; 0: none); richer_modes: modes of each kind added to every link of the
     richer validation model (``jaxflex.model.richer``; the "richer" evaluation set: the nominal
-    payloads; 0: none). Neither set ever trains the design.
+    payloads; 0: none). Neither set ever trains the design. memo: a directory of finished
+    optimizations (``loop.OptimizerConfig.memo``): an optimization with the same inputs (e.g. the
+    cycle-time study's at the reference tf and the main study's) runs once.
 
     Why these defaults (6 kg, tf 0.43 s, 100 steps; nominal / worst of the 9 perturbed models /
     damped, dwell residual): the Lamé design space with the relative objective gave 0.32 / 33.8 /
@@ -340,6 +342,7 @@ class StudyConfig:
     box_samples: int = 200
     box_seed: int = 0
     richer_modes: int = 3
+    memo: str | os.PathLike | None = None
 
     def checked(self) -> "StudyConfig":
         """Validate the fields that the study's own argument check does not (SPEC 8: before
@@ -516,7 +519,7 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
             result = train_design(models, cycle, tf, dwell, grid, scales, encode(cycle, x0), steps=steps,
                                   learning_rate=learning_rate, checkpoint=checkpoint, progress=progress,
                                   label=label, workspaces=workspaces, power=c.robust_power, order=c.law_order,
-                                  blend=c.blend)
+                                  blend=c.blend, memo=c.memo)
             x = jax.tree_util.tree_map(np.asarray, decode(cycle, result.params))
             paths["optimized"] = design_path(cycle, x, c.blend)
             coef = np.asarray(x.coef)
@@ -524,7 +527,7 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
             c0 = np.ones(n_coef) if init is None else np.asarray(init.coef)
             result = train_law(train_paper, paths["paper"], tf, scales, c0, steps=steps,
                                learning_rate=learning_rate, checkpoint=checkpoint, progress=progress, label=label,
-                               power=c.robust_power, order=c.law_order)
+                               power=c.robust_power, order=c.law_order, memo=c.memo)
             x, coef = None, np.asarray(result.params)
             paths["optimized"] = paths["paper"]
         candidates["optimized"] = Candidate("optimized", shaped(jnp.asarray(coef), c.law_order, name="optimized"))
@@ -590,7 +593,7 @@ def train_design(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid: 
                  init: Params, *, steps: int = 100, learning_rate: float = 0.05, checkpoint=None,
                  progress: bool = True, patience: int = 40, label: str = "design",
                  workspaces: Workspace | None = None, power: float = 1.0, order: int = 3,
-                 blend: str = BLEND_FAMILY) -> OptResult:
+                 blend: str = BLEND_FAMILY, memo=None) -> OptResult:
     """Optimize the design parameters (start ``init``) on ``models`` at motion time tf [s] with the
     normalization ``scales`` (Adam; learning rate warmed up, then cosine-decayed). The path tables
     inside the objective come from the models' workspace tables (``jaxflex.workspace``, built here
@@ -602,7 +605,7 @@ def train_design(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid: 
                                blend=blend)
     return minimize(f, init, args, OptimizerConfig(steps=steps, learning_rate=learning_rate, decay=True,
                                                    patience=patience, checkpoint=checkpoint, progress=progress,
-                                                   label=label, monitor=_dwell))
+                                                   label=label, monitor=_dwell, memo=memo))
 
 
 def design_objective(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid: Grid, scales: Scales,
@@ -636,7 +639,7 @@ def _canonical(scales: Scales) -> Scales:
 
 def train_law(train: LawEvaluator, path: Path, tf: float, scales: Scales, init, *, steps: int = 100,
               learning_rate: float = 0.05, checkpoint=None, progress: bool = True, patience: int = 40,
-              label: str = "law", power: float = 1.0, order: int = 3) -> OptResult:
+              label: str = "law", power: float = 1.0, order: int = 3, memo=None) -> OptResult:
     """Optimize the shaped-law coefficients (start ``init`` (m + 1,)) on the training models of
     ``train`` (its path) at motion time tf [s] with the normalization ``scales``."""
     _check_training(tf, train.dwell, steps, learning_rate)
@@ -644,7 +647,8 @@ def train_law(train: LawEvaluator, path: Path, tf: float, scales: Scales, init, 
                                  order=order)
     return minimize(f, jnp.asarray(init, dtype=float), args,
                     OptimizerConfig(steps=steps, learning_rate=learning_rate, decay=True, patience=patience,
-                                    checkpoint=checkpoint, progress=progress, label=label, monitor=_dwell))
+                                    checkpoint=checkpoint, progress=progress, label=label, monitor=_dwell,
+                                    memo=memo))
 
 
 def law_objective_args(models: ModelSet, path: Path, tf: float, dwell: float, grid: Grid, scales: Scales,

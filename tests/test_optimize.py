@@ -1,4 +1,6 @@
 """Optimization: gradients through the rollout vs finite differences, design decoding, the loop."""
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -154,6 +156,37 @@ def test_minimize_is_deterministic_and_resumes_from_a_checkpoint(tmp_path):
     np.testing.assert_array_equal(resumed.params["x"], full.params["x"])
     assert [h for h in resumed.history] == [h for h in full.history]
     assert full.value < float(f(p0)[0])
+
+
+@dataclasses.dataclass(frozen=True)
+class _Quartic:
+    """A small objective described by its fields (what a memo of optimizations needs)."""
+
+    weight: float = 0.1
+
+    def __call__(self, p, target):
+        return jnp.sum((p - target) ** 2) + self.weight * jnp.sum(p**4), {"p": p}
+
+
+def test_minimize_memo_loads_a_finished_run_with_the_same_inputs_only(tmp_path):
+    """A run whose objective, start, arguments and schedule were all seen before is loaded from the
+    memo (its recorded wall times come back, no step runs); a new argument value, objective field or
+    step count runs and is stored apart; a plain function cannot be memoized."""
+    memo, target = tmp_path / "memo", jnp.asarray([1.0, -2.0, 0.5])
+    cfg = OptimizerConfig(steps=15, learning_rate=0.1, progress=False, patience=100, decay=True, memo=memo)
+    first = minimize(_Quartic(), jnp.zeros(3), args=(target,), config=cfg)
+    again = minimize(_Quartic(), jnp.zeros(3), args=(target,), config=cfg)
+    assert again.times == first.times and again.history == first.history      # loaded, not run again
+    np.testing.assert_array_equal(again.params, first.params)
+    assert again.value == first.value and again.steps_run == 15 and again.stopped == "steps"
+    assert len(list(memo.glob("*.npz"))) == 1
+    other = minimize(_Quartic(), jnp.zeros(3), args=(target + 1e-12,), config=cfg)
+    assert other.times != first.times and len(list(memo.glob("*.npz"))) == 2
+    minimize(_Quartic(0.2), jnp.zeros(3), args=(target,), config=cfg)
+    minimize(_Quartic(), jnp.zeros(3), args=(target,), config=dataclasses.replace(cfg, steps=14))
+    assert len(list(memo.glob("*.npz"))) == 4
+    with pytest.raises(ValueError, match="frozen dataclass"):
+        minimize(lambda p, t: _Quartic()(p, t), jnp.zeros(3), args=(target,), config=cfg)
 
 
 def test_minimize_reuses_its_compilation_for_new_argument_values():
