@@ -72,14 +72,10 @@ def _load(path: Path, params, opt_state):
     rebuild = lambda tree, tag: jax.tree_util.tree_unflatten(
         jax.tree_util.tree_structure(tree),
         [jnp.asarray(z[f"{tag}{i}"]) for i in range(len(jax.tree_util.tree_leaves(tree)))])
+    # why the run stopped: "" while it runs (and in checkpoints of older versions)
+    stopped = str(z["stopped"]) if "stopped" in z.files else ""
     return (rebuild(params, "p"), rebuild(opt_state, "s"), [tuple(r) for r in z["history"].tolist()],
-            z["times"].tolist(), int(z["step"]), rebuild(params, "b"), float(z["best_value"]))
-
-
-def _stopped(path: Path) -> str:
-    """Why the run saved at ``path`` stopped ("" while it runs, or for a checkpoint of an older version)."""
-    z = np.load(path)
-    return str(z["stopped"]) if "stopped" in z.files else ""
+            z["times"].tolist(), int(z["step"]), rebuild(params, "b"), float(z["best_value"]), stopped)
 
 
 @functools.lru_cache(maxsize=1)
@@ -272,19 +268,19 @@ def minimize(f: Callable, params0, args: tuple = (), config: OptimizerConfig = O
     memo = Path(c.memo) / f"{fingerprint(f, params0, args, c)}.npz" if c.memo else None
     recalled = memo is not None and memo.exists()
     resumed = recalled or (ckpt is not None and ckpt.exists())
+    stopped = "steps"
     if resumed:
-        params, state, history, times, step, best, best_value = _load(memo if recalled else ckpt, params0, state)
+        params, state, history, times, step, best, best_value, saved = _load(memo if recalled else ckpt, params0,
+                                                                            state)
+        stopped = saved if recalled else stopped          # a finished run's reason; a checkpoint runs on
     bar = Progress(label, total=steps, unit="step", enabled=progress, start=step)
     if recalled:
-        stopped_at = _stopped(memo)
         bar.say(f"the same optimization finished before ({memo.name[:12]}): {step} steps, best {best_value:.4g}")
     elif resumed:
         bar.say(f"resumed at step {step} (best {best_value:.4g})")
     offset = times[-1] if times else 0.0
-    started, last_gain, stopped = time.perf_counter(), step, "steps"
+    started, last_gain = time.perf_counter(), step
     rate = schedule(steps, float(learning_rate), decay)        # built once, evaluated per step
-    if recalled:
-        stopped = stopped_at or stopped
     while step < steps and not recalled:
         # always a strongly typed float64 scalar: a change of type would retrace the update
         lr = jnp.asarray(rate(step), dtype=jnp.float64)
