@@ -97,7 +97,7 @@ def fingerprint(f, params0, args, config: "OptimizerConfig") -> str:
     """A digest of everything that determines ``minimize(f, params0, args, config)``'s result: the
     objective (a frozen dataclass instance such as ``study.DesignObjective``: its class and fields),
     the start, every array of ``args`` (values, shapes and dtypes), the schedule and stopping rules,
-    and the code (``_code_digest``). Raises ValueError for another kind of objective (a function's
+    the monitor's name (its numbers are in the history) and the code (``_code_digest``). Raises ValueError for another kind of objective (a function's
     name does not say what it computes)."""
     if not (dataclasses.is_dataclass(f) and not isinstance(f, type) and f.__dataclass_params__.frozen):
         raise ValueError("a memo of optimizations needs an objective that a frozen dataclass instance describes "
@@ -105,7 +105,8 @@ def fingerprint(f, params0, args, config: "OptimizerConfig") -> str:
     h = hashlib.sha1(_code_digest().encode())
     c = config
     h.update(repr((type(f).__module__, type(f).__qualname__, f, c.steps, float(c.learning_rate), c.decay,
-                   c.patience, float(c.rel_tol), c.target, c.mode)).encode())
+                   c.patience, float(c.rel_tol), c.target, c.mode, getattr(c.monitor, "__module__", None),
+                   getattr(c.monitor, "__qualname__", None))).encode())
     for tree in (params0, args):
         leaves, treedef = jax.tree_util.tree_flatten(tree)
         h.update(repr(treedef).encode())
