@@ -462,8 +462,8 @@ def static_equilibrium(robot: Robot, qa, external=None, iterations: int = 8) -> 
     lay = layout(robot)
 
     def step(qe, _):
-        r = elastic_force(robot, qa, qe, external)
-        k = jax.jacfwd(lambda x: elastic_force(robot, qa, x, external))(qe)
+        force = lambda x: (elastic_force(robot, qa, x, external),) * 2
+        k, r = jax.jacfwd(force, has_aux=True)(qe)       # the force traced once, with its tangents
         return qe - linalg.solve(k, r), None
 
     qe, _ = jax.lax.scan(step, jnp.zeros(lay.ne), None, length=iterations)

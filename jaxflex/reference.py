@@ -143,14 +143,26 @@ def _exprb3(robot, h, x, stages, omega, squarings, jac):
     s, scaled = _velocity_scaling(jac, omega)
     a = h * scaled
     phi = lambda *v: phi_times(a, [h * s * vi for vi in v], squarings) / s
-    rest = lambda motor, u: _field(robot, motor, u)[0] - jac @ u
-    f0, out0 = _field(robot, stages[0], x)
-    n0 = f0 - jac @ x
-    ua = x + phi_times(0.5 * a, [0.5 * h * s * f0], max(squarings - 1, 0)) / s
-    na = rest(stages[1], ua)
-    ub = x + phi(f0, 2.0 * (na - n0))
-    nb = rest(stages[2], ub)
-    return x + phi(f0, -3.0 * n0 + 4.0 * na - nb, 4.0 * (n0 - 2.0 * na + nb)), out0
+
+    # the three field evaluations as a loop over the stages (one trace of the model instead of
+    # three, as in ``_rk4``): stage k evaluates N at its state and motor motion, then forms the
+    # next stage's state (u_a, u_b, then the new state)
+    def stage(carry, inp):
+        u, f0, n0, na = carry
+        k, motor = inp
+        f, out = _field(robot, motor, u)
+        n = f - jac @ u
+        f0, n0 = jax.lax.cond(k == 0, lambda: (f, n), lambda: (f0, n0))
+        na = jax.lax.cond(k == 1, lambda: n, lambda: na)
+        u_next = jax.lax.switch(k, [
+            lambda: x + phi_times(0.5 * a, [0.5 * h * s * f0], max(squarings - 1, 0)) / s,
+            lambda: x + phi(f0, 2.0 * (na - n0)),
+            lambda: x + phi(f0, -3.0 * n0 + 4.0 * na - n, 4.0 * (n0 - 2.0 * na + n))])
+        return (u_next, f0, n0, na), out
+
+    zero = jnp.zeros_like(x)
+    (x_new, *_), (qedd, tau) = jax.lax.scan(stage, (x, zero, zero, zero), (jnp.arange(3), stages))
+    return x_new, (qedd[0], tau[0])
 
 
 def _outputs(robot, qa, qad, qadd, x, qedd, tau):
@@ -283,11 +295,12 @@ def _start(robot, masses, qa_pick, qa_place, h, exponential):
     1/omega (J the field's Jacobian), else zeros (B,)."""
     def one(m, qa_pick, qa_place):
         r, zero = robot.replace(payload=m), jnp.zeros(2)
-        qe0 = mdl.static_equilibrium(r, qa_pick)
+        # both poses in one trace of the model
+        qe0, q_star = jax.vmap(lambda qa: mdl.static_equilibrium(r, qa))(jnp.stack([qa_pick, qa_place]))
         ne = qe0.shape[0]
         x0 = jnp.concatenate([qe0, jnp.zeros(ne)])
-        q_star = mdl.static_equilibrium(r, qa_place)
-        e_static = mdl.ee_position(r, qa_place, q_star) - mdl.ee_position(r, qa_place, jnp.zeros(ne))
+        ends = jax.vmap(lambda qe: mdl.ee_position(r, qa_place, qe))(jnp.stack([q_star, jnp.zeros(ne)]))
+        e_static = ends[0] - ends[1]
         if not exponential:
             return x0, q_star, e_static, jnp.zeros(()), jnp.zeros(())
         jac = _field_jacobian(r, jnp.stack([qa_pick, zero, zero]), x0)
@@ -362,7 +375,10 @@ def _low_modes(robot, qa_place, q_star, x_tf):
     at rest, about q_e = 0, as ``linearized.pose_coeffs`` at zero path speed)."""
     ne = q_star.shape[0]
     zero2, zero_e = jnp.zeros(2), jnp.zeros(ne)
-    jac = jax.jacfwd(lambda z: mdl.reduced(robot, qa_place, z[:ne], zero2, z[ne:]).force[2:])(jnp.zeros(2 * ne))
-    mass = mdl.reduced(robot, qa_place, zero_e, zero2, zero_e).mass[2:, 2:]
+    def force(z):       # the force and (as aux, at z = 0) the mass: one trace of the model
+        red = mdl.reduced(robot, qa_place, z[:ne], zero2, z[ne:])
+        return red.force[2:], red.mass[2:, 2:]
+
+    jac, mass = jax.jacfwd(force, has_aux=True)(jnp.zeros(2 * ne))
     jx = jax.jacfwd(lambda x: mdl.ee_position(robot, qa_place, x))(zero_e)
     return low_mode_acceleration(mass, jac[:, :ne], jac[:, ne:], jx, q_star, x_tf)
