@@ -376,6 +376,15 @@ class Reduced(NamedTuple):
     w_acc: jax.Array
 
 
+def _mass_terms(robot: Robot, q, qd):
+    """M(q) (N, N), M'q' = (dM/dq q') q' (N,) and dT/dq = 1/2 q'^T (dM/dq) q' (N,) at the full
+    coordinates and velocities (q, q'), from one trace of the mass matrix: its linearization at q,
+    applied to q' and transposed (the Lagrangian's Coriolis and centrifugal terms)."""
+    mq, tangent = jax.linearize(lambda qq: mass_matrix(robot, qq), q)
+    (dtdq,) = jax.linear_transpose(tangent, q)(0.5 * jnp.outer(qd, qd))
+    return mq, tangent(qd) @ qd, dtdq
+
+
 def reduced(robot: Robot, qa, qe, qad, qed) -> Reduced:
     """Reduced mass matrix and force vector at the state (q_a, q_e, q_a', q_e')."""
     lay = layout(robot)
@@ -389,9 +398,7 @@ def reduced(robot: Robot, qa, qe, qad, qed) -> Reduced:
     pas = _passive_of(robot)
     pdot = lambda x: jax.jvp(pas, (x,), (qid,))[1]
     w_acc = jnp.zeros(lay.n).at[lay.p].set(jax.jvp(pdot, (qi,), (qid,))[1])
-    mq = mass_matrix(robot, q)
-    mdot_qd = jax.jvp(lambda qq: mass_matrix(robot, qq) @ qd, (q,), (qd,))[1]
-    dtdq = jax.grad(lambda qq: 0.5 * qd @ mass_matrix(robot, qq) @ qd)(q)
+    mq, mdot_qd, dtdq = _mass_terms(robot, q, qd)
     h = mdot_qd - dtdq
     dv = jax.grad(lambda qq: potential(robot, qq))(q)
     gen = mq @ w_acc + h + dv + damping_forces(robot, qd)
@@ -419,10 +426,9 @@ def residual(robot: Robot, qa, qe, qad, qed, qadd, qedd) -> jax.Array:
     q = jnp.zeros(lay.n).at[lay.a].set(qa).at[lay.e].set(qe).at[lay.p].set(qp)
     qd = jnp.zeros(lay.n).at[lay.a].set(qad).at[lay.e].set(qed).at[lay.p].set(qpd)
     qdd = jnp.zeros(lay.n).at[lay.a].set(qadd).at[lay.e].set(qedd).at[lay.p].set(qpdd)
-    mdot_qd = jax.jvp(lambda qq: mass_matrix(robot, qq) @ qd, (q,), (qd,))[1]
-    dtdq = jax.grad(lambda qq: 0.5 * qd @ mass_matrix(robot, qq) @ qd)(q)
+    mq, mdot_qd, dtdq = _mass_terms(robot, q, qd)
     dv = jax.grad(lambda qq: potential(robot, qq))(q)
-    gen = mass_matrix(robot, q) @ qdd + mdot_qd - dtdq + dv + damping_forces(robot, qd)
+    gen = mq @ qdd + mdot_qd - dtdq + dv + damping_forces(robot, qd)
     return jnp.concatenate([gen[lay.a], gen[lay.e]]) + project(gen[lay.p])[0]
 
 
