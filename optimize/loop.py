@@ -97,8 +97,8 @@ def fingerprint(f, params0, args, config: "OptimizerConfig") -> str:
     """A digest of everything that determines ``minimize(f, params0, args, config)``'s result: the
     objective (a frozen dataclass instance such as ``study.DesignObjective``: its class and fields),
     the start, every array of ``args`` (values, shapes and dtypes), the schedule and stopping rules,
-    the monitor's name (its numbers are in the history) and the code (``_code_digest``). Raises ValueError for another kind of objective (a function's
-    name does not say what it computes)."""
+    the monitor's name (its numbers are in the history) and the code (``_code_digest``). Raises
+    ValueError for another kind of objective (a function's name does not say what it computes)."""
     if not (dataclasses.is_dataclass(f) and not isinstance(f, type) and f.__dataclass_params__.frozen):
         raise ValueError("a memo of optimizations needs an objective that a frozen dataclass instance describes "
                          f"(e.g. jaxflex.optimize.study.DesignObjective), got {f!r}")
