@@ -113,10 +113,12 @@ def _time_value_and_grad(f, params, args, repeats: int, forward: bool, hot: bool
     program = compile_gradient_ahead(params, args, f=f, hot=hot).result()
     compile_s = time.perf_counter() - t0
     run = _median_time(lambda p: value_and_grad(p, args, f=f, hot=hot), params, repeats=repeats)
-    mem = program.memory_analysis()
+    # the staged design gradient is several programs (``optimize.staged``): the largest one's memory
+    mems = [p.memory_analysis() for p in (program if isinstance(program, list) else [program])]
+    temps = [m.temp_size_in_bytes for m in mems if m is not None]
     rec = {"parameters": int(sum(np.size(v) for v in jax.tree_util.tree_leaves(params))),
            "grad_compile_s": compile_s, "grad_run_s": run,
-           "grad_temp_gib": None if mem is None else mem.temp_size_in_bytes / 2**30}
+           "grad_temp_gib": max(temps) / 2**30 if temps else None}
     if forward:
         fwd = jax.jit(lambda p: f(p, *args)[0])
         first, run_f, _ = _time_first_and_median(fwd, params, repeats=repeats)

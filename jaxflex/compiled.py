@@ -13,7 +13,7 @@ fresh process of their own (``run_isolated``).
 ``compile_ahead`` starts compiling a jitted function for arguments of given shapes in a background
 thread while the caller goes on (XLA releases the interpreter lock while it compiles), and
 ``call`` runs that program once it is ready, or the function itself when nothing was compiled
-ahead for those shapes. The optimization study compiles its gradient (about a minute cold on 2
+ahead for those shapes. The optimization study compiles its gradient (about half a minute cold on 2
 cores) while it builds the paper sweep. The program is the one the jitted function would compile
 for the same abstract arguments, so the results are identical.
 """

@@ -47,20 +47,24 @@ def _linear(tables: Tables, samples: MotionSamples, tf, dwell, grid: Grid):
 # about twice their own time (a rollout of the default grid, minimum of 40 runs on 2 cores: 36.6 ms
 # of wall time and 54 ms of CPU as one program, 20.7 ms and 29 ms as these three; the same e(t) to
 # 5e-15 relative).
-@functools.partial(jax.jit, static_argnames=("grid",), compiler_options=HOT_LOOP)
-def _first(tables: Tables, samples: MotionSamples, tf, grid: Grid):
+def first_stage(tables: Tables, samples: MotionSamples, tf, grid: Grid) -> tuple[Prepared, object]:
+    """The second-order rollout's first part: the prepared pass with the first pass's forcing, and
+    the sites (the first pass's states) where the full model's remainder is evaluated."""
     prep = prepare(tables, samples, tf, grid)
     forcing, sites = first_pass(tables, prep, samples, grid)
     return prep._replace(forcing=forcing), sites
 
 
-_remainders = jax.jit(remainders, compiler_options=HOT_LOOP)
-
-
-@functools.partial(jax.jit, static_argnames=("grid",), compiler_options=HOT_LOOP)
-def _second(tables: Tables, prep: Prepared, r_all, samples: MotionSamples, tf, dwell, grid: Grid):
+def second_stage(tables: Tables, prep: Prepared, r_all, samples: MotionSamples, tf, dwell, grid: Grid) -> Series:
+    """The second-order rollout's last part: the second pass with the remainders ``r_all``
+    (``simulate.remainders`` at the sites of ``first_stage``) added to the forcing, then the dwell."""
     return second_pass(tables, prep._replace(forcing=add_remainders(prep.forcing, r_all, grid)), samples, tf,
                        dwell, grid)
+
+
+_first = jax.jit(first_stage, static_argnames=("grid",), compiler_options=HOT_LOOP)
+_remainders = jax.jit(remainders, compiler_options=HOT_LOOP)
+_second = jax.jit(second_stage, static_argnames=("grid",), compiler_options=HOT_LOOP)
 
 
 def cache_size() -> int:

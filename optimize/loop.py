@@ -172,12 +172,21 @@ def is_hot(steps: int) -> bool:
     return steps >= HOT_STEPS
 
 
+def _staged(f, mode: str) -> bool:
+    """Whether f computes its own reverse-mode value and gradient: an objective with a true
+    ``staged_gradient`` attribute provides ``value_and_grad(params, args, hot=)`` and
+    ``compile_ahead(params, args, hot=)`` (``study.DesignObjective``: ``optimize.staged``)."""
+    return mode == "reverse" and bool(getattr(f, "staged_gradient", False))
+
+
 def value_and_grad(params, args, *, f, mode: str = "reverse", hot: bool = False):
     """((value, aux), gradient) of f(params, *args) -> (value, aux): the program the optimizer runs
     at every step. Compiled with f static: calls with the same f (the same object) and new ``args``
     values of the same shapes reuse one compilation (e.g. a sweep over tf or payloads, a benchmark
     or a gradient check of the optimizer's own gradient). ``hot``: the hot program (``is_hot``), the
-    same values to round-off."""
+    same values to round-off. An objective with a staged gradient (``_staged``) runs its own."""
+    if _staged(f, mode):
+        return f.value_and_grad(params, args, hot=bool(hot))
     return compiled.call(_PROGRAMS[bool(hot)], (params, args), {"f": f, "mode": mode})
 
 
@@ -187,7 +196,10 @@ value_and_grad._cache_size = lambda: sum(p._cache_size() for p in _PROGRAMS.valu
 def compile_gradient_ahead(params, args, *, f, mode: str = "reverse", hot: bool = False):
     """Start compiling ``value_and_grad``'s program for parameters and arguments of these shapes
     (arrays or ``jax.ShapeDtypeStruct``) in a background thread (``jaxflex.compiled.compile_ahead``);
-    the first ``value_and_grad`` call with the same f, mode, hot and shapes waits for it and uses it."""
+    the first ``value_and_grad`` call with the same f, mode, hot and shapes waits for it and uses it.
+    An objective with a staged gradient (``_staged``) compiles its own programs."""
+    if _staged(f, mode):
+        return f.compile_ahead(params, args, hot=bool(hot))
     return compiled.compile_ahead(_PROGRAMS[bool(hot)], (params, args), {"f": f, "mode": mode})
 
 

@@ -91,17 +91,29 @@ def residual_terms(series) -> tuple:
     return series.energy_tf, jnp.mean(jnp.sum(amp * amp, axis=-1)), jnp.max(jnp.abs(series.tau))
 
 
-def _terms(series) -> dict:
+def series_terms(series) -> dict:
+    """The per-model terms of the objective (``residual_terms``) and the metrics of one rollout."""
     energy, dwell_ms, torque = residual_terms(series)
     return {"energy": energy, "dwell_ms": dwell_ms, "torque": torque, "metrics": metrics(series)}
+
+
+def scaled_residual(terms: dict, energy_ref, dwell_ref):
+    """E / E_ref + A / A_ref: a model's residual in units of its references (twice the module
+    docstring's r_k), the only way ``combine`` depends on the energy and dwell terms."""
+    return terms["energy"] / energy_ref + terms["dwell_ms"] / dwell_ref
 
 
 def combine(terms: dict, scales: Scales, torque_weight: float = TORQUE_WEIGHT, power: float = 1.0):
     """The scalar objective J (module docstring) from per-model terms (leaves (K,)): the log of the
     weighted power mean of order ``power`` of the models' scaled residuals r_k (1: the weighted
     mean; larger: a smooth stand-in for the worst model, within a factor w_min^(-1/power) of it)."""
-    per_model = terms["energy"] / scales.energy + terms["dwell_ms"] / scales.dwell_ms
-    excess = jnp.maximum(terms["torque"] / scales.torque_bound - 1.0, 0.0)
+    return combine_scaled(scaled_residual(terms, scales.energy, scales.dwell_ms), terms["torque"], scales,
+                          torque_weight, power)
+
+
+def combine_scaled(per_model, torque, scales: Scales, torque_weight: float = TORQUE_WEIGHT, power: float = 1.0):
+    """``combine`` from the models' ``scaled_residual`` (K,) and peak torques [N m] (K,)."""
+    excess = jnp.maximum(torque / scales.torque_bound - 1.0, 0.0)
     penalty = torque_weight * jnp.sum(excess**2)
     if power == 1.0:
         vib = jnp.mean(per_model) if scales.weights is None else jnp.sum(scales.weights * per_model)
@@ -141,7 +153,7 @@ def objective_terms(params: Params, robots: Robot, cycle: Cycle, tf, dwell, grid
     ``workspaces``: their workspace tables stacked alike (``jaxflex.workspace``), or None to build
     each path's tables from the model."""
     x = decode(cycle, params)
-    one = lambda robot, ws: _terms(design_rollout(robot, cycle, x, tf, dwell, grid, blend=blend, order=order,
+    one = lambda robot, ws: series_terms(design_rollout(robot, cycle, x, tf, dwell, grid, blend=blend, order=order,
                                                   second_order=second_order, workspace=ws))
     return over_models(one, robots, workspaces)
 
@@ -169,5 +181,5 @@ def law_objective(coef, tables, length, tf, dwell, grid: Grid, scales: Scales, *
     models stacked (``stack_robots``) for the second-order fast model, None for the first-order one.
     Cheaper than ``objective``: the tables do not depend on the law."""
     samples = motion_samples(length, shaped(coef, order), tf, grid)
-    t = over_models(lambda tab, robot: _terms(rollout(tab, samples, tf, dwell, grid, robot)), tables, robots)
+    t = over_models(lambda tab, robot: series_terms(rollout(tab, samples, tf, dwell, grid, robot)), tables, robots)
     return combine(t, scales, torque_weight, power), t

@@ -65,6 +65,7 @@ from jaxflex.sweep import default_grid
 from jaxflex.workspace import Workspace, build_workspace, workspace_shapes
 
 from .baselines import ruckig_samples, shaper_profiles
+from . import staged
 from .loop import OptimizerConfig, OptResult, compile_gradient_ahead, is_hot, minimize
 from .objective import TORQUE_WEIGHT, Params, Scales, decode, encode, law_objective, objective
 
@@ -475,7 +476,7 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
     weights = training_weights(train, len(payloads))
     workspaces = None
     if free_path:
-        # the design gradient compiles (about a minute cold) in the background from the start, during
+        # the design gradient compiles (about half a minute cold) in the background from the start, during
         # the workspace tables and the paper sweep: its workspace and scales are only shapes until then
         x0 = init if init is not None else start_design(cycle, n_coef, c.blend)
         if steps > 0:
@@ -560,17 +561,31 @@ class DesignObjective:
     hashable value, so equal configurations are one static argument of the optimizer's compiled
     program (it compiles once for every tf, payload set and scale of the same shapes).
 
-    Called as f(params, robots, cycle, tf, dwell, scales, workspaces) -> (J, per-model terms)."""
+    Called as f(params, robots, cycle, tf, dwell, scales, workspaces) -> (J, per-model terms).
+
+    ``staged_gradient`` (default): the optimizer's reverse-mode value and gradient
+    (``loop.value_and_grad``) run model by model as a chain of small programs
+    (``optimize.staged``), the same values to round-off; False: ``jax.value_and_grad`` of the call
+    as one program."""
 
     grid: Grid
     blend: str = BLEND_FAMILY
     order: int = 3
     torque_weight: float = TORQUE_WEIGHT
     power: float = 1.0
+    staged_gradient: bool = True
 
     def __call__(self, params, robots, cycle, tf, dwell, scales, workspaces):
         return objective(params, robots, cycle, tf, dwell, self.grid, scales, blend=self.blend, order=self.order,
                          torque_weight=self.torque_weight, workspaces=workspaces, power=self.power)
+
+    def value_and_grad(self, params, args, *, hot: bool = False):
+        """((J, terms), gradient) through the staged programs (``optimize.staged.value_and_grad``)."""
+        return staged.value_and_grad(self, params, args, hot=hot)
+
+    def compile_ahead(self, params, args, *, hot: bool = False):
+        """Start compiling the staged programs for these shapes (``optimize.staged.compile_ahead``)."""
+        return staged.compile_ahead(self, params, args, hot=hot)
 
 
 @dataclasses.dataclass(frozen=True)

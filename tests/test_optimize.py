@@ -234,35 +234,46 @@ def test_minimize_does_not_stop_early_on_negative_objectives():
 @pytest.mark.xdist_group("commands")
 def test_the_optimizers_own_gradient_matches_central_differences():
     """The gradient the optimizer steps with (``loop.value_and_grad`` on the design objective exactly
-    as ``train_design`` builds it: reverse mode, second-order model, tables rebuilt from the workspace,
-    default grid, the nominal 6 kg model, torque penalty active, the default smoothstep blends) w.r.t.
-    every design parameter - the six blend parameters (d, e of both corners, asymmetric, through the
-    smoothstep's warp solve; n, which that family ignores, has a zero gradient) and the six law
-    coefficients - against
-    central differences of the same objective. FD step 1e-5 on O(1) parameters (the workspace
-    tables are local bicubics, C0 across their 5 mm cells: a 1e-4 step can straddle a cell boundary
-    of some path node and errs by up to 5e-5, while at 1e-5 the rounding noise of the rollout,
-    ~1e-9 of the objective, reaches 5e-5 on the smallest components): relative error < 1e-4, or
-    1e-3 of the largest component for the near-zero ones. A wrong derivative rule anywhere in the
-    chain (custom JVPs, the remainder, the table rebuild) shows as errors of percent. The program is the one ``jaxflex optimize --train
-    nominal`` compiles, so the command and this check share it."""
+    as ``train_design`` builds it: reverse mode through the staged programs, ``optimize.staged``;
+    second-order model, tables rebuilt from the workspace, default grid, the default smoothstep
+    blends, the studies' power mean of order 8) over two models, the nominal 0.1 kg and 6 kg ones,
+    with the torque penalty active on the 6 kg model alone, w.r.t. every design parameter - the six
+    blend parameters (d, e of both corners, asymmetric, through the smoothstep's warp solve; n, which
+    that family ignores, has a zero gradient) and the six law coefficients - against central
+    differences of the same objective (``staged.value``: the same forward programs). FD step 1e-5
+    on O(1) parameters (the workspace tables are local bicubics, C0 across their 5 mm cells: a 1e-4
+    step can straddle a cell boundary of some path node and errs by up to 5e-5, while at 1e-5 the
+    rounding noise of the rollout, ~1e-9 of the objective, reaches 5e-5 on the smallest
+    components): relative error < 1e-4, or 1e-3 of the largest component for the near-zero ones. A
+    wrong derivative rule anywhere in the chain (custom JVPs, the remainder, the table rebuild, the
+    staged backward passes and their combination over the models, the torque penalty's row) shows as
+    errors of percent. The staged programs do not depend on the number of models: one model reuses
+    them. The programs are the ones ``jaxflex optimize --train nominal`` compiles, so the command and
+    this check share them."""
+    from jaxflex.optimize import staged
     from jaxflex.optimize.loop import value_and_grad
     from jaxflex.optimize.study import StudyConfig, design_objective, training_models
 
     robot, cycle = robot_preset("default"), cycle_preset()
-    models = training_models(robot, [6.0], "nominal")
+    models = training_models(robot, [0.1, 6.0], "nominal")
     config = dict(power=StudyConfig.robust_power, order=StudyConfig.law_order, blend=StudyConfig.blend)
     grid = default_grid(robot, [TF], DWELL)
     p0 = encode(cycle, design(d=0.02, e=0.03, n=3.5, coef=[1.0, 1.2, 0.9, 1.1, 0.8, 1.05], d2=0.022, e2=0.04,
                               n2=3.2))
-    f, args = design_objective(models, cycle, TF, DWELL, grid, Scales(jnp.full(1, 1e-3), jnp.full(1, 1e-10),
-                                                                      jnp.full(1, jnp.inf), jnp.ones(1)), **config)
-    torque = float(value_and_grad(p0, args, f=f)[0][1]["torque"][0])
-    # a bound 1 % below the peak torque: the penalty term is on, and its size comparable to the rest
-    scales = Scales(jnp.full(1, 1e-3), jnp.full(1, 1e-10), jnp.full(1, 0.99 * torque), jnp.ones(1))
-    f, args = design_objective(models, cycle, TF, DWELL, grid, scales, args[-1], **config)
+    refs = dict(energy=jnp.asarray([1e-4, 1e-3]), dwell_ms=jnp.asarray([1e-11, 1e-10]))
+    f, args = design_objective(models, cycle, TF, DWELL, grid, Scales(**refs, torque_bound=jnp.full(2, jnp.inf)),
+                               **config)
+    torque = np.asarray(staged.value(f, p0, args)[1]["torque"])
+    # a bound 1 % below the 6 kg model's peak torque: its penalty term is on, and its size comparable to
+    # the rest; the 0.1 kg model stays within its bound
+    bound = jnp.asarray([1.01 * torque[0], 0.99 * torque[1]])
+    f, args = design_objective(models, cycle, TF, DWELL, grid, Scales(**refs, torque_bound=bound), args[-1],
+                               **config)
     (value, aux), grad = value_and_grad(p0, args, f=f)
-    value_of = lambda p: float(value_and_grad(p, args, f=f)[0][0])
+    programs = staged.cache_size()
+    np.testing.assert_allclose(np.asarray(aux["torque"]), torque, rtol=1e-12)
+    value_of = lambda p: float(staged.value(f, p, args)[0])
+    assert abs(value_of(p0) - float(value)) <= 1e-12 * abs(float(value))
     for field in ("blend", "coef"):
         x = getattr(p0, field)
         for i in range(x.shape[0]):
@@ -272,6 +283,45 @@ def test_the_optimizers_own_gradient_matches_central_differences():
             g = float(getattr(grad, field)[i])
             assert abs(g - fd) <= 1e-4 * max(abs(fd), 1e-3 * float(jnp.abs(getattr(grad, field)).max())), \
                 (field, i, g, fd)
+    one = training_models(robot, [6.0], "nominal")
+    f1, args1 = design_objective(one, cycle, TF, DWELL, grid, Scales(jnp.full(1, 1e-3), jnp.full(1, 1e-10),
+                                                                     bound[1:]), **config)
+    (value1, aux1), _ = value_and_grad(p0, args1, f=f1)
+    np.testing.assert_allclose(np.asarray(aux1["torque"]), torque[1:], rtol=1e-12)
+    assert staged.cache_size() == programs + 1, "a new number of models compiled more than its combination"
+
+
+@pytest.mark.slow
+def test_the_staged_design_gradient_equals_the_one_program_gradient():
+    """The staged value and gradient (``optimize.staged``) against ``jax.value_and_grad`` of the whole
+    design objective as one program (``DesignObjective(staged_gradient=False)``), on three models of
+    the uncertainty box with the power mean of order 8 and the torque bound active on one of them:
+    the same numbers up to the round-off of two different programs (the rollout's ~1e-12, amplified
+    by the log and the power mean): value and terms to 1e-9 relative, gradient to 1e-9 of its
+    largest component. About a minute (the one-program gradient's compile)."""
+    import dataclasses
+
+    from jaxflex.optimize.loop import value_and_grad
+    from jaxflex.optimize.study import StudyConfig, design_objective, subset, training_models
+
+    robot, cycle = robot_preset("default"), cycle_preset()
+    models = subset(training_models(robot, [6.0], "box"), [0, 4, 8])
+    config = dict(power=StudyConfig.robust_power, order=StudyConfig.law_order, blend=StudyConfig.blend)
+    grid = default_grid(robot, [TF], DWELL)
+    p0 = encode(cycle, design(d=0.02, e=0.03, n=3.5, coef=[1.0, 1.2, 0.9, 1.1, 0.8, 1.05], d2=0.022, e2=0.04,
+                              n2=3.2))
+    scales = Scales(jnp.full(3, 1e-3), jnp.full(3, 1e-10), jnp.full(3, jnp.inf))
+    f, args = design_objective(models, cycle, TF, DWELL, grid, scales, **config)
+    torque = np.asarray(value_and_grad(p0, args, f=f)[0][1]["torque"])
+    bound = jnp.asarray(torque * np.array([1.01, 0.99, 1.01]))
+    f, args = design_objective(models, cycle, TF, DWELL, grid, scales._replace(torque_bound=bound), args[-1], **config)
+    (v, aux), g = value_and_grad(p0, args, f=f)
+    (v1, aux1), g1 = value_and_grad(p0, args, f=dataclasses.replace(f, staged_gradient=False))
+    assert abs(float(v) - float(v1)) <= 1e-9 * abs(float(v1))
+    for a, b in zip(jax.tree_util.tree_leaves(aux), jax.tree_util.tree_leaves(aux1)):
+        np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-9, atol=1e-300)
+    flat = lambda t: np.concatenate([np.ravel(x) for x in jax.tree_util.tree_leaves(t)])
+    assert np.max(np.abs(flat(g) - flat(g1))) <= 1e-9 * np.max(np.abs(flat(g1)))
 
 
 @pytest.mark.slow
