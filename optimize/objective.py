@@ -139,7 +139,9 @@ def over_models(fn, *batched):
     rollout at a time instead of all K. The design gradient on the 9 box models (the hot program, 2
     cores, cold): 0.23 GiB of XLA temporary memory against 1.84 vmapped, 60-69 s to compile against
     43-50; a step takes 1.32 s against 1.00 with glibc's malloc on huge pages (the CLI's setting),
-    1.33 against 1.86 without; the same value and gradient to round-off (3e-13 relative)."""
+    1.33 against 1.86 without; the same value and gradient to round-off (3e-13 relative). The
+    optimizer differentiates the design objective model by model instead (``optimize.staged``:
+    about half that compile time); this serves the law objective and the one-program gradient."""
     if _count(batched) <= VMAP_MODELS:
         return jax.vmap(fn)(*batched)
     remat = jax.checkpoint(fn)
