@@ -225,8 +225,11 @@ _CHAIN_POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxflex-stag
 
 
 def _wait_for_compilation(f, hot: bool) -> None:
+    """Wait for the chains compiling f's programs; they are then forgotten here (the programs stay
+    in ``compiled``'s registry until ``compiled.release_compiled``)."""
     with _CHAINS_LOCK:
-        pending = [fut for (g, h, _), fut in _CHAINS.items() if g == f and h == bool(hot)]
+        keys = [key for key in _CHAINS if key[0] == f and key[1] == bool(hot)]
+        pending = [_CHAINS.pop(key) for key in keys]
     for fut in pending:
         fut.result()
 
