@@ -124,6 +124,11 @@ MUTATIONS = [
      "residual energy +5 %"),
     ("x6_deflection", "jaxflex/metrics.py", '"max_deflection_mm": 1e3 * jnp.max(_norm(series.e))',
      '"max_deflection_mm": 1e3 * jnp.max(_norm(series.e[:-1]))', "max deflection misses the last sample"),
+    # ---- the optimizer's gradient (optimize/staged.py)
+    ("o1_staged_residual_row", "optimize/staged.py", "total = total + d_residual[i] * g_residual",
+     "total = total + 1.05 * d_residual[i] * g_residual", "each model's residual row of the gradient +5 %"),
+    ("o2_staged_torque_row", "optimize/staged.py", "total = total + d_torque[i] * g_torque",
+     "total = total + 1.05 * d_torque[i] * g_torque", "the torque penalty's row of the gradient +5 %"),
 ]
 
 DEFAULT_TESTS = ["tests/test_rollout_physics.py::test_metrics_on_a_series_with_known_answers",
