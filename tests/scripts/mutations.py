@@ -23,7 +23,8 @@ import time
 from pathlib import Path
 
 F = "* 1.05"
-# (id, file, exact text, replacement, what is wrong)
+GRADIENT_TEST = "tests/test_optimize.py::test_the_optimizers_own_gradient_matches_central_differences"
+# (id, file, exact text, replacement, what is wrong[, tests to run first])
 MUTATIONS = [
     # ---- the model (paper Section 2)
     ("m1_proximal_mass", "jaxflex/model.py", "return robot.rho * robot.area * robot.l1, robot.rho",
@@ -125,10 +126,13 @@ MUTATIONS = [
     ("x6_deflection", "jaxflex/metrics.py", '"max_deflection_mm": 1e3 * jnp.max(_norm(series.e))',
      '"max_deflection_mm": 1e3 * jnp.max(_norm(series.e[:-1]))', "max deflection misses the last sample"),
     # ---- the optimizer's gradient (optimize/staged.py)
+    # (a sixth element: the tests that check this code, run first, before the physics files)
     ("o1_staged_residual_row", "optimize/staged.py", "total = total + d_residual[i] * g_residual",
-     "total = total + 1.05 * d_residual[i] * g_residual", "each model's residual row of the gradient +5 %"),
+     "total = total + 1.05 * d_residual[i] * g_residual", "each model's residual row of the gradient +5 %",
+     [GRADIENT_TEST]),
     ("o2_staged_torque_row", "optimize/staged.py", "total = total + d_torque[i] * g_torque",
-     "total = total + 1.05 * d_torque[i] * g_torque", "the torque penalty's row of the gradient +5 %"),
+     "total = total + 1.05 * d_torque[i] * g_torque", "the torque penalty's row of the gradient +5 %",
+     [GRADIENT_TEST]),
 ]
 
 DEFAULT_TESTS = ["tests/test_rollout_physics.py::test_metrics_on_a_series_with_known_answers",
@@ -137,7 +141,8 @@ DEFAULT_TESTS = ["tests/test_rollout_physics.py::test_metrics_on_a_series_with_k
 
 
 def run_one(root: Path, python: str, mutation, tests, timeout: float) -> dict:
-    mid, rel, old, new, what = mutation
+    mid, rel, old, new, what = mutation[:5]
+    tests = [*mutation[5:6][0], *tests] if len(mutation) > 5 else tests
     path = root / rel
     text = path.read_text()
     count = text.count(old)
