@@ -164,10 +164,14 @@ def _enable_compilation_cache(jax) -> None:
 
 
 def main(argv=None) -> int:
-    """Console entry point: parse ``argv`` (default: sys.argv), enable float64 and the persistent
-    compilation cache, run the command; returns the exit status (2 on bad input)."""
+    """Console entry point: parse ``argv`` (default: sys.argv), enable float64, the persistent
+    compilation cache and the heap trimming (``jaxflex.heap``), run the command; returns the exit
+    status (2 on bad input)."""
     import jax
 
+    from jaxflex import heap
+
+    heap.start_trimming()
     jax.config.update("jax_enable_x64", True)
     _enable_compilation_cache(jax)
     args = build_parser().parse_args(argv)

@@ -27,6 +27,8 @@ from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 import jax
 import numpy as np
 
+from jaxflex import heap
+
 _CONFIG = ("jax_enable_x64", "jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs")
 
 # XLA options of the hot programs, compiled once and then run many times: the engine's rollout
@@ -111,7 +113,9 @@ def call(fn, args: tuple, static: dict | None = None):
     return fn(*args, **static)
 
 
-def _call_configured(config: dict, fn, args, kwargs):
+def _call_configured(config: dict, trim: bool, fn, args, kwargs):
+    if trim:
+        heap.start_trimming()
     for name, value in config.items():
         jax.config.update(name, value)
     return fn(*args, **kwargs)
@@ -119,9 +123,10 @@ def _call_configured(config: dict, fn, args, kwargs):
 
 def run_isolated(fn, /, *args, **kwargs):
     """``fn(*args, **kwargs)`` in a fresh Python process (spawned, with this process's float64 and
-    persistent-cache settings), returning its result or raising its exception. The child's compiled
-    programs and memory mappings end with it. ``fn`` must be importable (a module-level function),
-    its arguments and result picklable; the child's output goes to this process's stdout/stderr."""
+    persistent-cache settings and its heap trimming, ``jaxflex.heap``), returning its result or
+    raising its exception. The child's compiled programs and memory mappings end with it. ``fn``
+    must be importable (a module-level function), its arguments and result picklable; the child's
+    output goes to this process's stdout/stderr."""
     config = {name: getattr(jax.config, name) for name in _CONFIG}
     with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn")) as pool:
-        return pool.submit(_call_configured, config, fn, args, kwargs).result()
+        return pool.submit(_call_configured, config, heap.trimming(), fn, args, kwargs).result()
