@@ -10,7 +10,7 @@ where the pose-only fields (mass, k0, ...) have B_1 alone, the fields per unit s
 ones (f1, k1, c1, ...) B_a and B_b, and the fields per unit s'^2 (f2, k2, ..., jx2) the other five.
 ``build_workspace`` tabulates these pose functions once per robot on a uniform grid of end-effector
 positions covering the cycle's rectangle (traverse x lift, where every blended path of the cycle
-lies) from eight exact evaluations of ``pose_coeffs`` per grid point. ``workspace_tables`` then
+lies) from five exact evaluations of ``pose_coeffs`` per grid point. ``workspace_tables`` then
 gives the path tables of ``linearized.build_tables`` for any path of the cycle by local bicubic
 interpolation of the B's at the path's nodes and the exact polynomial in (qa1, qa2): no model
 evaluation, so a gradient with respect to the path (blend parameters) costs little to compile and
@@ -38,9 +38,13 @@ ORDER0 = ("mass", "m_ae", "f0", "k0", "c0", "t0", "tq0", "tv0", "jx")       # po
 ORDER1 = ("f1", "k1", "c1", "t1", "tq1", "tv1", "jx1")                     # linear in qa1
 ORDER2 = ("f2", "k2", "t2", "tq2", "jx2")                                  # quadratic in qa1, linear in qa2
 MONOMIALS = {0: (0,), 1: (1, 2), 2: (3, 4, 5, 6, 7)}   # indices into [1, a, b, a^2, ab, b^2, c, d]
-# the (qa1, qa2) at which pose_coeffs is evaluated: 0, +-e1, +-e2, e1 + e2 (qa1); e1, e2 (qa2)
-_PROBES = np.array([[0, 0, 0, 0], [1, 0, 0, 0], [-1, 0, 0, 0], [0, 1, 0, 0], [0, -1, 0, 0], [1, 1, 0, 0],
-                    [0, 0, 1, 0], [0, 0, 0, 1]], dtype=float)
+# the (qa1, qa2) at which pose_coeffs is evaluated: e1, e2, e1 + e2 (qa1); e1, e2 (qa2). Each field
+# is a polynomial with only its class's monomials (``MONOMIALS``: exact, the model being quadratic in
+# velocities and linear in accelerations; tests/test_workspace.py checks it with more probes), so
+# five evaluations determine every coefficient: at qa1 = e1 an order-1 field is B_a and an order-2
+# field B_aa, at e1 + e2 an order-2 field is B_aa + B_ab + B_bb, at qa2 = e1 it is B_c; an order-0
+# field is B_1 at any probe.
+_PROBES = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [1, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=float)
 
 
 def _order(field: str) -> int:
@@ -68,16 +72,17 @@ def grid_shape(cycle: Cycle, spacing: float = 0.005) -> tuple[int, int]:
 
 def _combine(ev: dict) -> dict:
     """The monomial coefficients B of every field (field -> (k, ...)) from ``pose_coeffs`` at the
-    eight probes ``_PROBES`` (field -> (8, ...))."""
+    five probes ``_PROBES`` (field -> (5, ...))."""
     out = {}
     for name in ORDER0 + ORDER1 + ORDER2:
         e = ev[name]
-        b1 = e[0]
-        ba, bb = 0.5 * (e[1] - e[2]), 0.5 * (e[3] - e[4])
-        baa, bbb = 0.5 * (e[1] + e[2]) - b1, 0.5 * (e[3] + e[4]) - b1
-        bab = e[5] - b1 - ba - bb - baa - bbb
-        allb = jnp.stack([b1, ba, bb, baa, bab, bbb, e[6] - b1, e[7] - b1])
-        out[name] = allb[np.asarray(MONOMIALS[_order(name)])]
+        order = _order(name)
+        if order == 0:
+            out[name] = e[:1]
+        elif order == 1:
+            out[name] = e[:2]                                                   # B_a, B_b
+        else:
+            out[name] = jnp.stack([e[0], e[2] - e[0] - e[1], e[1], e[3], e[4]])   # B_aa, B_ab, B_bb, B_c, B_d
     return out
 
 
@@ -87,8 +92,8 @@ def _basis_at(robot: Robot, qa):
 
 
 def _basis_full(robot: Robot, qa):
-    """``pose_coeffs`` at the eight probes ``_PROBES`` (field -> (8, ...)), from which ``_basis_at``
-    forms the monomial coefficients (tests check the polynomial structure on it)."""
+    """``pose_coeffs`` at the probes ``_PROBES`` (field -> (5, ...)), from which ``_basis_at`` forms
+    the monomial coefficients."""
     probes = jnp.asarray(_PROBES)
     ev = jax.vmap(lambda p: pose_coeffs(robot, qa, p[:2], p[2:]))(probes)._asdict()
     return {k: v for k, v in ev.items() if k in ORDER0 + ORDER1 + ORDER2}

@@ -384,6 +384,22 @@ def evaluation_sets(robot: Robot, cycle: Cycle, payloads, tf: float, dwell: floa
     return sets, grids
 
 
+def _baselines(cancelled, robot, cycle, payloads, tf, dwell, grid, config, path, blend, law, ruckig_candidate):
+    """The baselines on the best paper path ``path`` (blend / law: the best paper combination) and
+    their evaluations: (freqs, candidates, sets, grids, evaluators, evaluations), freqs the first
+    locked-motor mode at the place pose [Hz] per payload, candidates name -> Candidate (the best
+    law, its input-shaped versions at the first payload's mode, then ``ruckig_candidate`` (name,
+    Candidate) unless None), the rest as ``_paper_evaluations``. None when ``cancelled`` is set."""
+    freqs = tuple(place_first_mode_hz(robot.replace(payload=m), cycle) for m in payloads)
+    candidates = {f"{blend}/{law} (best paper)": Candidate("paper", make_profile(law))}
+    for p in shaper_profiles(law, freqs[0], tf):
+        candidates[f"{blend}/{p.name}"] = Candidate("paper", p)
+    if ruckig_candidate is not None:
+        candidates[ruckig_candidate[0]] = ruckig_candidate[1]
+    out = _paper_evaluations(cancelled, robot, cycle, payloads, tf, dwell, grid, config, path, candidates)
+    return None if out is None else (freqs, candidates) + out
+
+
 def _paper_evaluations(cancelled, robot, cycle, payloads, tf, dwell, grid, config, path, candidates):
     """The evaluation sets, the best paper path's evaluators on them and every candidate on that
     path (the baselines) evaluated: (sets, grids, evaluators set -> {"paper": LawEvaluator} (for a
@@ -498,22 +514,19 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
     torque_bound = bounds[nominal]
     scales = scales_from_metrics(ref, bounds, weights, models if c.absolute else None)
     label = f"{'design' if free_path else 'law'} tf={tf:g}"
-    freqs = tuple(place_first_mode_hz(robot.replace(payload=m), cycle) for m in payloads)
-    # baselines on the best paper path: the best law, its shaped versions (first payload's mode), Ruckig
-    candidates = {f"{blend}/{law} (best paper)": Candidate("paper", make_profile(law))}
-    for p in shaper_profiles(law, freqs[0], tf):
-        candidates[f"{blend}/{p.name}"] = Candidate("paper", p)
-    limits = None
+    # baselines on the best paper path: the best law, its shaped versions (first payload's mode), Ruckig.
+    # They, the evaluation sets and the baselines' evaluations on them do not depend on the design:
+    # they are computed beside the optimizer (a background thread), the optimized design after it
+    ruckig_candidate, limits = None, None
     if ruckig:
         try:
             smp, limits = ruckig_samples(float(paths["paper"].length), tf, grid)
-            candidates[f"{blend}/ruckig"] = Candidate("paper", smp)
+            ruckig_candidate = (f"{blend}/ruckig", Candidate("paper", smp))
         except ImportError as err:
             if progress:
                 print(f"  (Ruckig baseline skipped: {err})", flush=True)
-    # the evaluation sets and the baselines on them do not depend on the design: they are computed
-    # beside the optimizer (a background thread), the optimized design after it
-    beside = Beside(_paper_evaluations, robot, cycle, payloads, tf, dwell, grid, c, paths["paper"], dict(candidates))
+    beside = Beside(_baselines, robot, cycle, payloads, tf, dwell, grid, c, paths["paper"], blend, law,
+                    ruckig_candidate)
     setup_s = time.time() - started
     with beside:
         if free_path:
@@ -531,10 +544,10 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
                                power=c.robust_power, order=c.law_order, memo=c.memo)
             x, coef = None, np.asarray(result.params)
             paths["optimized"] = paths["paper"]
-        candidates["optimized"] = Candidate("optimized", shaped(jnp.asarray(coef), c.law_order, name="optimized"))
         wait = Progress("evaluation sets and baselines", enabled=progress)
         with wait.waiting("finishing the baselines computed beside the optimizer", key="baselines beside"):
-            sets, grids, evaluators, evaluations = beside.result()
+            freqs, candidates, sets, grids, evaluators, evaluations = beside.result()
+    candidates["optimized"] = Candidate("optimized", shaped(jnp.asarray(coef), c.law_order, name="optimized"))
     total = sum(len(s.labels) for s in sets.values())
     bar = Progress(f"the optimized design on {total} models", total=len(sets), unit="set", enabled=progress)
     with bar:

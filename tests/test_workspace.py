@@ -35,19 +35,28 @@ def test_workspace_shapes_are_those_of_the_built_workspace(setup):
         assert (s.shape, s.dtype) == ((2,) + a.shape, a.dtype)
 
 
+# (qa1, qa2) probes of the structure check: 0, +-e1, +-e2, e1 + e2 (qa1); e1, e2 (qa2), from which every
+# monomial of [1, a, b, a^2, ab, b^2, c, d] follows (central differences separate odd and even parts)
+_CHECK_PROBES = np.array([[0, 0, 0, 0], [1, 0, 0, 0], [-1, 0, 0, 0], [0, 1, 0, 0], [0, -1, 0, 0], [1, 1, 0, 0],
+                          [0, 0, 1, 0], [0, 0, 0, 1]], dtype=float)
+
+
 def test_coefficients_are_exact_polynomials_in_the_path_derivatives():
-    """Every field's monomials outside its class (``MONOMIALS``) vanish, and the polynomial rebuilt
-    from the eight probes equals ``pose_coeffs`` at arbitrary (qa1, qa2) to round-off (the model is
-    quadratic in velocities and linear in accelerations, so the claim is exact). Tolerance 1e-7 of
-    each field's range: pose_coeffs forms the s'' and s'^2 fields as differences of Jacobians that
-    hold the ~1e9 N/m axial stiffness, so their round-off is ~1e-7 N/m absolute (measured 2.4e-7 on k1,
-    whose entries reach 21)."""
+    """Every field's monomials outside its class (``MONOMIALS``) vanish (eight probes, more than the
+    workspace's five, so that the check does not assume the structure the workspace relies on), and
+    the polynomial the workspace rebuilds from its five probes equals ``pose_coeffs`` at arbitrary
+    (qa1, qa2) to round-off (the model is quadratic in velocities and linear in accelerations, so
+    the claim is exact). Tolerance 1e-7 of each field's range: pose_coeffs forms the s'' and s'^2
+    fields as differences of Jacobians that hold the ~1e9 N/m axial stiffness, so their round-off is
+    ~1e-7 N/m absolute (measured 2.4e-7 on k1, whose entries reach 21)."""
     robot = robot_preset("default", payload=6.0)
     qa = np.asarray(igm(robot, jnp.asarray([0.05, 0.27])))
-    # pose_coeffs at the eight probes, through the library's shared coefficient program
-    probes = np.asarray(_PROBES)
-    full = coeffs_many(robot, np.repeat(qa[None], len(probes), 0), probes[:, :2], probes[:, 2:])._asdict()
-    e = {k: np.asarray(v) for k, v in full.items() if k in ORDER0 + ORDER1 + ORDER2}
+
+    def at(probes):      # pose_coeffs at the probes, through the library's shared coefficient program
+        full = coeffs_many(robot, np.repeat(qa[None], len(probes), 0), probes[:, :2], probes[:, 2:])._asdict()
+        return {k: np.asarray(v) for k, v in full.items() if k in ORDER0 + ORDER1 + ORDER2}
+
+    e = at(_CHECK_PROBES)
     b = {k: np.stack([e[k][0], 0.5 * (e[k][1] - e[k][2]), 0.5 * (e[k][3] - e[k][4]),
                       0.5 * (e[k][1] + e[k][2]) - e[k][0], np.zeros_like(e[k][0]), 0.5 * (e[k][3] + e[k][4]) - e[k][0],
                       e[k][6] - e[k][0], e[k][7] - e[k][0]]) for k in e}
@@ -57,7 +66,11 @@ def test_coefficients_are_exact_polynomials_in_the_path_derivatives():
         dropped = np.delete(b[k], MONOMIALS[_order(k)], axis=0)
         assert np.max(np.abs(dropped)) <= 1e-7 * scale, k
     assert set(ORDER0 + ORDER1 + ORDER2) == set(e)
-    basis = jax.tree_util.tree_map(lambda v: v[0], _combine_all({k: jnp.asarray(v)[None] for k, v in e.items()}))
+    probed = at(np.asarray(_PROBES))
+    basis = jax.tree_util.tree_map(lambda v: v[0], _combine_all({k: jnp.asarray(v)[None] for k, v in probed.items()}))
+    for k in b:           # the same monomials as the eight-probe check's
+        np.testing.assert_allclose(basis[k], b[k][np.asarray(MONOMIALS[_order(k)])], rtol=0,
+                                   atol=1e-7 * (np.max(np.abs(b[k])) + 1e-300), err_msg=k)
     rng = np.random.default_rng(0)
     qa1s, qa2s = rng.normal(0, 4, (3, 2)), rng.normal(0, 300, (3, 2))             # rad/m, rad/m^2
     refs = coeffs_many(robot, np.repeat(qa[None], 3, 0), qa1s, qa2s)._asdict()
