@@ -158,11 +158,12 @@ def _optimization(out: Path, quick: bool, key: dict, vib: dict | None = None) ->
     from . import optimize as opt
 
     steps = 2 if quick else StudyConfig.steps
-    # Full runs give each study a process of its own: for peak memory, no longer for the mapping limit
-    # (jaxflex.compiled). In one process, with the staged gradient's programs shared by the studies,
-    # the mapping count peaked at 18-22 thousand of 65530, but the resident memory at 4.7-6.4 GB
-    # against 3.8 GB (2026-11-27, 2 cores). Quick runs (a smoke test of every step: 2 optimizer
-    # steps, nominal models) stay in this process and share its compiled programs.
+    # Full runs give each study a process of its own: for peak memory and time, no longer for the
+    # mapping limit (jaxflex.compiled). In one process, with the staged gradient's programs shared by
+    # the studies, the mapping count peaked at 18-22 thousand of 65530, the resident memory at 3.6 GB
+    # with the heap trimming (jaxflex.heap; 4.7-6.4 GB without) against 3.0 GB, and the run took
+    # 23:58 against 21:53 (2026-11-27, 2 cores, the same results bit for bit). Quick runs (a smoke test
+    # of every step: 2 optimizer steps, nominal models) stay in this process and share its programs.
     isolated = (lambda fn, **kw: fn(**kw)) if quick else run_isolated
     grid = default_grid(robot_preset("default"), [0.43], 0.1)
     # finished optimizations by their inputs: the cycle-time study's design at tf_ref is the 6 kg

@@ -133,6 +133,10 @@ MUTATIONS = [
     ("o2_staged_torque_row", "optimize/staged.py", "total = total + d_torque[i] * g_torque",
      "total = total + 1.05 * d_torque[i] * g_torque", "the torque penalty's row of the gradient +5 %",
      [GRADIENT_TEST]),
+    # ---- the workspace tables the design gradient interpolates (jaxflex/workspace.py)
+    ("w1_workspace_speed_term", "jaxflex/workspace.py", "jnp.stack([e[0], e[2] - e[0] - e[1], e[1], e[3], e[4]])",
+     "jnp.stack([e[0], e[2] - e[0] - e[1], 1.05 * e[1], e[3], e[4]])",
+     "the workspace's b^2 coefficient (s'^2 terms of the second motor) +5 %", ["tests/test_workspace.py"]),
 ]
 
 DEFAULT_TESTS = ["tests/test_rollout_physics.py::test_metrics_on_a_series_with_known_answers",
