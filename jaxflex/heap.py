@@ -7,8 +7,9 @@ returning it, so the resident size grows far beyond what is live: at the end of 
 optimize --payload 6 --tf 0.43``, 2.9 GB resident for 0.19 GB of live arrays, 1.0 GB after one
 ``malloc_trim(0)``. ``start_trimming`` runs a daemon thread that trims the heap whenever the
 resident size has grown by ``slack`` bytes since its last trim (checked every ``period`` seconds).
-It changes where memory sits, never a result. The command-line entry points start it (the test suite's workers do not);
-a library user may call it too. Linux with glibc only (elsewhere it does nothing).
+It changes where memory sits, never a result. The command-line entry points start it (the test
+suite's workers do not); a library user may call it too. Linux with glibc only (elsewhere it does
+nothing).
 
 The cost is kernel time: returned pages are faulted in again when the next buffers need them. Measured
 cold on 2 cores (2026-11-27): ``jaxflex optimize --payload 6 --tf 0.43`` with a 128 MiB slack trims 138
