@@ -63,12 +63,15 @@ def mapping_limit() -> int | None:
 
 def release_compiled() -> None:
     """Drop every compiled program JAX holds in this process (``jax.clear_caches``) and collect
-    them, returning their memory mappings. Later calls recompile, or load from the persistent
-    compilation cache when it is enabled (the CLI enables it)."""
+    them, returning their memory mappings, and give the freed heap back to the system
+    (``heap.trim``: the trimming thread acts only when the resident size grows, and what a section
+    freed would otherwise stay resident while a child process runs the next one). Later calls
+    recompile, or load from the persistent compilation cache when it is enabled (the CLI enables it)."""
     with _AHEAD_LOCK:
         _AHEAD.clear()
     jax.clear_caches()
     gc.collect()
+    heap.trim()
 
 
 _AHEAD: dict = {}                   # signature -> Future of a compiled program (compile_ahead)

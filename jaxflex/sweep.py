@@ -79,20 +79,21 @@ def _coeffs(robot, payloads, qa, qa1, qa2):
 
 def _sweep_series(values, breaks, lengths, tfs, dwell, robots, profiles, grid, second_order):
     """Every rollout (blend x law x case) through the evaluation engine (``jaxflex.engine``: one
-    compiled program for every run), series stacked with leading axes (B, P, C); tables (C, B, ...)."""
+    compiled program for every run, the runs side by side on the host's cores, ``engine.run_many``),
+    series stacked with leading axes (B, P, C); tables (C, B, ...)."""
     laws = [make_profile(name) for name in profiles]
     # per-run tables and lengths sliced on the host (eager jax indexing would dispatch a small
     # program per leaf and run), then passed as device arrays like every other caller's tables
     values, breaks, lengths = jax.tree_util.tree_map(np.asarray, (values, breaks, lengths))
-    out = []
+    jobs = []
     for i in range(breaks.shape[0]):
         tables = [Tables(values=jax.tree_util.tree_map(lambda v: jnp.asarray(v[c, i]), values),
                          breaks=jnp.asarray(breaks[i])) for c in range(len(tfs))]
-        out.append(trees.stack([trees.stack([engine.run(tables[c], sample_motion(lengths[i], law, tfs[c], grid),
-                                                        tfs[c], dwell, robots[c], grid, second_order)
-                                             for c in range(len(tfs))])
-                                for law in laws]))
-    return trees.stack(out)
+        jobs += [(tables[c], sample_motion(lengths[i], law, tfs[c], grid), tfs[c], dwell, robots[c])
+                 for law in laws for c in range(len(tfs))]
+    series = engine.run_many(jobs, grid, second_order)
+    lead = (breaks.shape[0], len(laws), len(tfs))
+    return jax.tree_util.tree_map(lambda a: a.reshape(lead + a.shape[1:]), series)
 
 
 def _stacked_tables(robot, cycle, payloads, blends, d, e, n):
@@ -144,7 +145,8 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES, *, d=0.0
 
     Three compiled stages, each shared with the rest of the library: the table poses (one program per
     blend family), the linearization coefficients (``linearized.coeffs_many``) and the rollouts, one
-    trajectory at a time through the evaluation engine (``jaxflex.engine``), then the metrics.
+    trajectory at a time through the evaluation engine (``jaxflex.engine``, from a thread per core:
+    ``jaxflex.parallel``, the same results as one after another), then the metrics.
     Timing: ``tables_s`` is the wall time of the table build (compilation included; the
     persistent compilation cache makes it short after the first run on a machine); ``compile_s``
     the first sweep (every rollout through the engine's one program, and the metrics) minus one
