@@ -60,7 +60,8 @@ def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwe
     - ``design``: value and gradient of the design objective w.r.t. the 6 blend parameters (d, e, n
       of both corners) and the 6 law coefficients, the linearization tables rebuilt inside the
       differentiated function from the workspace tables (their build, once per model, is timed
-      apart, compilation included), and the objective alone (forward) for the ratio;
+      apart, compilation included), the objective alone (forward) for the ratio, and the time of
+      each of the gradient's programs run alone (``stages_s``, ``optimize.staged.stage_times``);
     - ``law`` (not with ``quick``): the same for the 6 coefficients of a shaped law on the Lamé path
       (tables fixed);
     - ``design_box`` (not with ``quick``): the design gradient of the studies, over the 9 models of
@@ -68,6 +69,7 @@ def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwe
       of a study.
     Compile times are those of the program alone (``compile_gradient_ahead``)."""
     from jaxflex.designs import design
+    from jaxflex.optimize import staged
     from jaxflex.optimize.objective import encode
     from jaxflex.optimize.study import (StudyConfig, design_objective, law_objective_args, training_models,
                                         training_weights)
@@ -89,6 +91,7 @@ def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwe
     out = {"design": _time_value_and_grad(f, params, args, repeats, not quick, hot=not quick),
            "steps": grid.steps + grid.dwell_steps}
     out["design"]["workspace_build_s"] = ws_s
+    out["design"]["stages_s"] = staged.stage_times(f, params, args, hot=not quick, repeats=repeats)
     if not quick:
         path = make_path(cycle, "lame", 0.025)
         f_law, args_law = law_objective_args(models, path, tf, dwell, grid, scales, power=c.robust_power,
@@ -156,6 +159,9 @@ def compute(repeats: int = 5, quick: bool = False) -> dict:
         temp = f", XLA temp {g['grad_temp_gib']:.2f} GiB" if g["grad_temp_gib"] is not None else ""
         print(f"  {what}: value and gradient {g['grad_run_s'] * 1e3:.1f} ms (compile {g['grad_compile_s']:.0f} s"
               f"{temp}); " + fwd, flush=True)
+        if "stages_s" in g:
+            print("    its programs on one model, one at a time: " + ", ".join(
+                f"{name} {t * 1e3:.1f} ms" for name, t in g["stages_s"].items()), flush=True)
     rec = {"sweep": sweep, "gradient": grad, "peak_rss_mb": _peak_rss_mb(), "quick": quick,
            "devices": [str(d) for d in jax.devices()],
            "provenance": provenance({"repeats": repeats, "quick": quick}, started)}

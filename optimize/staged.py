@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import functools
 import threading
+import time
 from concurrent.futures import Future, ThreadPoolExecutor
 
 import jax
@@ -166,9 +167,10 @@ def _per_model(v, k: int) -> np.ndarray:
 class _Model:
     """One model's forward pass (stored for the backward) and its backward passes."""
 
-    def __init__(self, programs: _Programs, f, params, robot, cycle, workspace, tf, dwell, energy_ref, dwell_ref):
-        p, call = programs, compiled.call
-        self.programs = programs
+    def __init__(self, programs: _Programs, f, params, robot, cycle, workspace, tf, dwell, energy_ref, dwell_ref,
+                 call=compiled.call):
+        p = programs
+        self.programs, self.call = programs, call
         (tables, samples), self.v_path = call(p.path, (params, robot, cycle, workspace, tf),
                                               {"grid": f.grid, "blend": f.blend, "order": f.order})
         (prep, sites), self.v_first = call(p.first, (tables, samples, tf), {"grid": f.grid})
@@ -179,7 +181,7 @@ class _Model:
 
     def gradient(self, row) -> np.ndarray:
         """The gradient of r_k (``RESIDUAL_ROW``) or tau_k (``TORQUE_ROW``), flattened."""
-        p, call = self.programs, compiled.call
+        p, call = self.programs, self.call
         c_tables, c_prep, c_r, c_samples = call(p.back, (self.v_last, jnp.asarray(row, dtype=jnp.float64)))
         (c_sites,) = call(p.back, (self.v_remainder, c_r))
         c_tables1, c_samples1 = call(p.back, (self.v_first, (c_prep, c_sites)))
@@ -234,6 +236,35 @@ def value_and_grad(f, params, args, *, hot: bool = False):
         elif d_torque[i] != 0.0:
             raise RuntimeError(f"model {i}: the torque penalty has a gradient but the torque is within its bound")
     return (v, terms), unravel(jnp.asarray(total, dtype=flat0.dtype))
+
+
+STAGES = ("forward: path and tables", "forward: first pass", "forward: remainder", "forward: last pass",
+          "backward: last pass", "backward: remainder", "backward: first pass", "backward: path and tables")
+
+
+def stage_times(f, params, args, *, hot: bool = False, repeats: int = 5) -> dict:
+    """Where a step of ``value_and_grad`` goes: the median wall time [s] of each of its programs
+    (``STAGES``, in the order they run) on the first training model, each program run to completion
+    before the next starts (``jax.block_until_ready``; in a step the models' programs overlap on the
+    host's cores). The first pass, which may compile, is not counted."""
+    robots, cycle, tf, dwell, scales, workspaces, k = _unpack(args)
+    _wait_for_compilation(f, hot)
+    robot, workspace, energy_ref, dwell_ref = _models(robots, workspaces, scales, k)[0]
+    times: list = []
+
+    def timed(fn, fn_args, static=None):
+        t0 = time.perf_counter()
+        out = jax.block_until_ready(compiled.call(fn, fn_args, static))
+        times.append(time.perf_counter() - t0)
+        return out
+
+    runs = []
+    for _ in range(int(repeats) + 1):
+        times.clear()
+        _Model(_PROGRAMS[bool(hot)], f, params, robot, cycle, workspace, tf, dwell, energy_ref, dwell_ref,
+               call=timed).gradient(RESIDUAL_ROW)
+        runs.append(list(times))
+    return dict(zip(STAGES, np.median(np.asarray(runs[1:]), axis=0).tolist()))
 
 
 # compile_ahead: chains of ahead compilations, one per objective and program set, that value_and_grad
