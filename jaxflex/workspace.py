@@ -186,18 +186,33 @@ def _bicubic_jvp(primals, tangents):
 _bicubic.defjvp(_bicubic_jvp, symbolic_zeros=True)
 
 
+def _stencil_at(ws: Workspace, packed, x):
+    """The bicubic interpolant of the packed grid values (nu, nv, F) at the end-effector position x
+    (2,) [m]: the 4 x 4 stencil around x (clamped to the grid) as one slice."""
+    local = ws.axes.T @ (x - ws.origin) / ws.step
+    starts, ts = [], []
+    for k in range(2):
+        i0 = jnp.clip(jnp.floor(local[k]).astype(int) - 1, 0, packed.shape[k] - 4)
+        starts.append(i0)
+        ts.append(local[k] - i0.astype(float))
+    block = jax.lax.dynamic_slice(packed, (starts[0], starts[1], 0), (4, 4, packed.shape[-1]))
+    return _bicubic(block, *ts)
+
+
 def interpolate_basis(ws: Workspace, x) -> dict:
     """Pose functions at the end-effector position x (2,) [m] by local bicubic interpolation
     (differentiable in x and in the grid values)."""
-    local = ws.axes.T @ (x - ws.origin) / ws.step
-    some = next(iter(ws.values.values()))
-    n = np.array(some.shape[:2])
-    idx, ts = [], []
-    for k in range(2):
-        i0 = jnp.clip(jnp.floor(local[k]).astype(int) - 1, 0, int(n[k]) - 4)
-        idx.append(i0 + jnp.arange(4))
-        ts.append(local[k] - i0.astype(float))
-    return trees.map_packed(lambda v: _bicubic(v[idx[0][:, None], idx[1][None, :]], *ts), ws.values, lead=2)
+    return trees.map_packed(lambda v: _stencil_at(ws, v, x), ws.values, lead=2)
+
+
+def interpolate_nodes(ws: Workspace, xs) -> dict:
+    """``interpolate_basis`` at the positions xs (N, 2) [m]: leaves with a leading axis N.
+
+    The nodes are interpolated one after another (``lax.map``), not as one batch: a batch gathers
+    every node's stencil first (16 x 2320 values per node on the default model, 75 MB for a path's
+    252 nodes) and reads it back, while one node's stencil stays in cache. The same values bit for
+    bit, 4-5x faster forward and about 2x faster to differentiate (measured on the default model)."""
+    return trees.map_packed(lambda v: jax.lax.map(lambda x: _stencil_at(ws, v, x), xs), ws.values, lead=2)
 
 
 def _monomials(qa1, qa2):
@@ -228,5 +243,5 @@ def workspace_tables(ws: Workspace, robot: Robot, path: Path) -> Tables:
     """The path's linearization tables (as ``linearized.build_tables``) from the workspace tables of
     the same robot and cycle; differentiable in the path parameters."""
     x, qa, qa1, qa2 = path_nodes(robot, path)
-    values = jax.vmap(lambda xi, a, b, c: coeffs_from_basis(interpolate_basis(ws, xi), a, b, c))(x, qa, qa1, qa2)
+    values = jax.vmap(coeffs_from_basis)(interpolate_nodes(ws, x), qa, qa1, qa2)
     return Tables(values=values, breaks=path.breaks)
