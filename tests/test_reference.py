@@ -72,3 +72,21 @@ def test_fast_matches_full_nonlinear_model_lame(setup, full, payload, tf):
         ours, theirs = fast.metrics[k][0, :, 0], np.asarray(ref_m[k])
         rel = np.abs(ours / theirs - 1)
         assert np.all(rel < (0.02 if k == "residual_acc" else 0.005)), (k, ours, theirs)
+
+
+def test_runs_in_batches_equal_each_run_alone(setup):
+    """The runs go through the programs ``RUN_BLOCK`` at a time (padded with a filler run): three
+    laws in one call give each law's run alone (two batches, the second and every single run padded)
+    to round-off, in order, with the filler dropped. A short move (tf 0.1 s) keeps it cheap."""
+    from jaxflex import reference
+
+    robot, path, _ = setup
+    assert reference.RUN_BLOCK == 2            # else three runs would not span a padded second batch
+    laws = [make_profile(p) for p in ("poly7", "bang_bang", "trap_1_8")]
+    together = reference_rollout(robot, path, laws, 0.1, 0.02, progress=False)
+    assert together.e.shape[0] == len(laws)
+    for i, law in enumerate(laws):
+        alone = reference_rollout(robot, path, law, 0.1, 0.02, progress=False)
+        for a, b in zip(jax.tree_util.tree_leaves(alone), jax.tree_util.tree_leaves(together)):
+            # the same program on the same inputs; only the batch's other run differs
+            np.testing.assert_allclose(np.asarray(b[i]), np.asarray(a), rtol=1e-12, atol=1e-14 * np.abs(a).max())
