@@ -199,8 +199,9 @@ def reference_rollout(robot: Robot, path: Path | Sequence[Path], profile: Profil
     ``profile`` is one motion law or a sequence of them, along ``path`` or along the matching
     element of a sequence of paths (one per law; they must share the pick and place points, as
     every path of one cycle does); ``robot.payload`` may be a 1-D array of
-    payloads [kg]. The runs are vmapped (batching amortizes the per-operation overhead of the
-    nonlinear model, which dominates a single sequential run). dt [s] is rounded down so that the
+    payloads [kg]. The runs are vmapped in batches of ``RUN_BLOCK`` (batching amortizes the
+    per-operation overhead of the nonlinear model, which dominates a single sequential run; a short
+    last batch is padded, so every call runs the same programs). dt [s] is rounded down so that the
     motion has a multiple of 8 steps; the dwell uses dwell_dt (default dt). Returns a ``Series`` like
     ``jaxflex.simulate.rollout`` with outputs at every step and leading axes (profile, payload) for
     the batched inputs that were given, so ``jaxflex.metrics.metrics`` applies (vmapped).
