@@ -238,22 +238,35 @@ def reference_rollout(robot: Robot, path: Path | Sequence[Path], profile: Profil
         runs = [(float(m), smp) for smp in samples for m in np.atleast_1d(payload)]
         count = len(runs)
         runs += runs[:1] * (-count % RUN_BLOCK)                   # filler runs, dropped below
-        parts = []
-        for i in range(0, len(runs), RUN_BLOCK):
-            block = runs[i:i + RUN_BLOCK]
-            masses = jnp.asarray([m for m, _ in block])
-            parts.append(_integrate(robot, masses, trees.stack([smp for _, smp in block]), tf, dwell, n, nd, method,
-                                    bar, first=i == 0))
-        out = trees.concatenate(parts, length=count)
+        batches = [(jnp.asarray([m for m, _ in block]), trees.stack([smp for _, smp in block]))
+                   for block in (runs[i:i + RUN_BLOCK] for i in range(0, len(runs), RUN_BLOCK))]
+        with bar.waiting("the start: static equilibria at the pick and place poses"):
+            begun = [_begin(robot, masses, smp, tf, dwell, n, nd, method) for masses, smp in batches]
+            # for twice the largest start norm of the call's runs (the pose and the deflection change
+            # ||h J|| by far less), and at least MIN_SQUARINGS, so that most calls share one program
+            norm = max(float(jnp.max(b[-1])) for b in begun)
+            squarings = max(MIN_SQUARINGS, squarings_for(2.0 * norm)) if method == "exprb3" else 0
+        out = trees.concatenate([_integrate(robot, masses, smp, tf, dwell, n, nd, method, squarings, start, bar,
+                                             first=j == 0)
+                                 for j, ((masses, smp), start) in enumerate(zip(batches, begun))], length=count)
     shape = (len(profiles),) + payload.shape
     out = jax.tree_util.tree_map(lambda a: a.reshape(shape + a.shape[1:]), out)
     return jax.tree_util.tree_map(lambda a: a[0], out) if single else out
 
 
-def _integrate(robot, masses, samples, tf, dwell, n, nd, method, bar, first: bool = True):
-    """The batch of runs (leading axis B of ``masses`` [kg] and ``samples``): start, the steps of
-    ``method`` in calls of CHUNK steps (on the progress ``bar``, one unit per call), the outputs at
-    the ends. ``first``: the first batch of the call (whose first chunk compiles the step)."""
+def _begin(robot, masses, samples, tf, dwell, n, nd, method):
+    """The start of a batch of runs (leading axis B of ``masses`` [kg] and ``samples``; ``_start``):
+    (state, q_e*, static error, omega, norm)."""
+    h, hd = tf / n, dwell / nd
+    starts, _, ends = samples
+    return _start(robot, masses, starts[0][:, 0], ends[0][:, -1], max(h, hd), exponential=method == "exprb3")
+
+
+def _integrate(robot, masses, samples, tf, dwell, n, nd, method, squarings, start, bar, first: bool = True):
+    """The batch of runs (leading axis B of ``masses`` [kg] and ``samples``) from its ``start``
+    (``_begin``): the steps of ``method`` in calls of CHUNK steps (on the progress ``bar``, one unit
+    per call), the outputs at the ends. ``first``: the first batch of the call (whose first chunk
+    compiles the step)."""
     h, hd = tf / n, dwell / nd
     chunks = -(-(n + nd) // CHUNK)
     total = chunks * CHUNK
@@ -267,12 +280,7 @@ def _integrate(robot, masses, samples, tf, dwell, n, nd, method, bar, first: boo
     motor = jnp.concatenate([motion, jnp.broadcast_to(hold[:, None, None], (len(masses), total - n, 3, 3, 2))],
                             axis=1)
     steps = jnp.asarray(np.concatenate([np.full(n, h), np.full(nd, hd), np.zeros(total - n - nd)]))
-    with bar.waiting("the start: static equilibria at the pick and place poses"):
-        x, q_star, e_static, omega, norm = _start(robot, masses, starts[0][:, 0], qa_place, max(h, hd),
-                                                  exponential=method == "exprb3")
-        # for twice the start's norm (the pose and the deflection change ||h J|| by far less), and
-        # at least MIN_SQUARINGS, so that most calls share one program
-        squarings = max(MIN_SQUARINGS, squarings_for(2.0 * float(jnp.max(norm)))) if method == "exprb3" else 0
+    x, q_star, e_static, omega, _ = start
     x_tf, ys = None, []
     for c in range(chunks):
         part = slice(c * CHUNK, (c + 1) * CHUNK)
