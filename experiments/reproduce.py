@@ -13,7 +13,7 @@ import numpy as np
 from . import convergence, kinematics, modes, vibration
 from . import vibration as vibration_study
 from jaxflex import progress
-from jaxflex.compiled import release_compiled, run_isolated
+from jaxflex.compiled import release_compiled, release_if_crowded, run_isolated
 
 from .io import provenance, resumable, table, write_json, write_text
 
@@ -51,8 +51,11 @@ def run(out: str = "results", quick: bool = False, vibration: bool = True, optim
                              make_figures=preset == "default")
         results[f"kinematics_{preset}"] = res
     sections.append(_kinematics_section(results, fig_dir, out))
-    # between sections: bounded memory mappings (jaxflex.compiled); a quick run keeps its programs
-    release = (lambda: None) if quick else release_compiled
+    # between sections 1 to 4: bounded memory mappings (jaxflex.compiled); the compiled programs stay
+    # while the process holds less than half its mapping limit (the later sections run many of them
+    # again: the engine's rollouts, the coefficient program; about 24 thousand mappings and 2.3 GB
+    # resident at the end of section 4, 2026-11-27)
+    release = release_if_crowded
     release()
 
     tracker.next()
@@ -84,10 +87,9 @@ def run(out: str = "results", quick: bool = False, vibration: bool = True, optim
         if not quick:
             tracker.next()
             print("== step convergence and full-model cross-check", flush=True)
-            conv = {"dt": resumable(out / "convergence_dt.json", key,
-                                    lambda: run_isolated(convergence.dt_study), "dt study")}
-            conv["reference"] = resumable(out / "convergence_reference.json", key,
-                                          lambda: run_isolated(convergence.reference_study), "full-model check")
+            conv = {"dt": resumable(out / "convergence_dt.json", key, convergence.dt_study, "dt study")}
+            conv["reference"] = resumable(out / "convergence_reference.json", key, convergence.reference_study,
+                                          "full-model check")
             release()
             results["convergence"] = conv
             sections.append(_convergence_section(conv, vib))
@@ -95,6 +97,8 @@ def run(out: str = "results", quick: bool = False, vibration: bool = True, optim
     if optimize:
         tracker.next()
         print("== optimization study (beyond the paper)", flush=True)
+        if not quick:
+            release_compiled()          # the studies run in processes of their own (``_optimization``)
         results["optimize"] = _optimization(out, quick, key, results.get("vibration"))
         sections.append(_optimization_section(results["optimize"], out))
 
@@ -158,11 +162,12 @@ def _optimization(out: Path, quick: bool, key: dict, vib: dict | None = None) ->
     from . import optimize as opt
 
     steps = 2 if quick else StudyConfig.steps
-    # Full runs give each study a process of its own: for peak memory and time, no longer for the
-    # mapping limit (jaxflex.compiled). In one process, with the staged gradient's programs shared by
-    # the studies, the mapping count peaked at 18-22 thousand of 65530, the resident memory at 3.6 GB
-    # with the heap trimming (jaxflex.heap; 4.7-6.4 GB without) against 3.0 GB, and the run took
-    # 23:58 against 21:53 (2026-11-27, 2 cores, the same results bit for bit). Quick runs (a smoke test
+    # Full runs give each study a process of its own: for peak memory, no longer for the mapping limit
+    # (jaxflex.compiled). The compiled programs hold the memory: one study's about 1.3 GB (20.7
+    # thousand mappings; 0.77 GB resident after ``release_compiled``, 2.1 GB before). Cold runs in one
+    # process on 2026-11-27 evening, the same results bit for bit: with the programs kept while under
+    # half the mapping limit, 19:56 against 20:56 but 4.4 GB resident; released after each study, 20:54
+    # and 3.7 GB; earlier that day 23:58 and 3.6 GB against 21:53 and 3.0 GB. Quick runs (a smoke test
     # of every step: 2 optimizer steps, nominal models) stay in this process and share its programs.
     isolated = (lambda fn, **kw: fn(**kw)) if quick else run_isolated
     grid = default_grid(robot_preset("default"), [0.43], 0.1)

@@ -78,7 +78,5 @@ def _bounded_memory_mappings():
     limit on mappings (vm.max_map_count) and LLVM crashes while compiling (jaxflex.compiled). Before
     each test, a worker above half the limit drops its compiled programs; the next test that needs
     one loads it from the session's persistent compilation cache or compiles it again."""
-    count, limit = compiled.mapping_count(), compiled.mapping_limit()
-    if count is not None and limit is not None and count > _MAPPING_SHARE * limit:
-        compiled.release_compiled()
+    compiled.release_if_crowded(_MAPPING_SHARE)
     yield

@@ -98,6 +98,21 @@ def test_compile_ahead_gives_the_jitted_result_and_release_forgets_it():
     assert not compiled._AHEAD
 
 
+@pytest.mark.skipif(mapping_count() is None or mapping_limit() is None, reason="needs /proc (Linux)")
+def test_release_if_crowded_releases_only_above_its_share_of_the_mapping_limit():
+    """``release_if_crowded`` keeps the compiled programs while the process holds less than its share
+    of the mapping limit (a jitted function's cache stays), and releases them above it."""
+    from jaxflex.compiled import release_if_crowded
+
+    f = jax.jit(lambda x: jnp.cos(x) * 3.0)
+    f(jnp.ones(3)).block_until_ready()
+    assert f._cache_size() == 1
+    assert not release_if_crowded(share=1.0)           # never crowded: at most the whole limit
+    assert f._cache_size() == 1
+    assert release_if_crowded(share=0.0)               # any mapping is above a share of 0
+    assert f._cache_size() == 0
+
+
 def test_host_map_keeps_order_results_and_errors(monkeypatch):
     """``parallel.host_map`` with several threads equals the sequential loop, item by item, and
     raises the first failing item's error; JAXFLEX_THREADS is validated."""

@@ -55,3 +55,15 @@ def test_start_trimming_starts_one_thread_and_respects_the_switch(monkeypatch):
     monkeypatch.setenv("JAXFLEX_HEAP_TRIM", "0")
     first, _, running, threads = run_isolated(_start_twice)
     assert not first and not running and threads == 0
+
+
+def test_trimming_rule_waits_for_growth_above_the_floor():
+    """``heap.should_trim``: below ``above`` (default 2 GiB: an optimizer's steps refill a few hundred
+    MB of freed buffers at every step, and trimming them each time costs their page faults) no growth
+    trims; above it, growth by more than ``slack`` since the last trim does, less does not."""
+    mib = 2**20
+    assert heap.TRIM_ABOVE == 2048 * mib
+    assert not heap.should_trim(1900 * mib, 100 * mib, 128 * mib, heap.TRIM_ABOVE)       # 1.8 GB grown, below
+    assert heap.should_trim(2100 * mib, 1900 * mib, 128 * mib, heap.TRIM_ABOVE)          # above, grown 200 MiB
+    assert not heap.should_trim(2100 * mib, 2000 * mib, 128 * mib, heap.TRIM_ABOVE)      # above, grown 100 MiB
+    assert heap.should_trim(300 * mib, 100 * mib, 128 * mib, 0)                          # no floor: growth alone
