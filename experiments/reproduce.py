@@ -166,9 +166,10 @@ def _optimization(out: Path, quick: bool, key: dict, vib: dict | None = None) ->
     # (jaxflex.compiled). The compiled programs hold the memory: one study's about 1.3 GB (20.7
     # thousand mappings; 0.77 GB resident after ``release_compiled``, 2.1 GB before). Cold runs in one
     # process on 2026-11-27 evening, the same results bit for bit: with the programs kept while under
-    # half the mapping limit, 19:56 against 20:56 but 4.4 GB resident; released after each study, 20:54
-    # and 3.7 GB; earlier that day 23:58 and 3.6 GB against 21:53 and 3.0 GB. Quick runs (a smoke test
-    # of every step: 2 optimizer steps, nominal models) stay in this process and share its programs.
+    # half the mapping limit, 19:56 against 20:56 but 4.4 GB resident; released after each study (with
+    # the full model and the gradient compiled ahead in background threads), 20:54 and 3.7 GB; earlier
+    # that day 23:58 and 3.6 GB against 21:53 and 3.0 GB. Quick runs (a smoke test of every step: 2
+    # optimizer steps, nominal models) stay in this process and share its programs.
     isolated = (lambda fn, **kw: fn(**kw)) if quick else run_isolated
     grid = default_grid(robot_preset("default"), [0.43], 0.1)
     # finished optimizations by their inputs: the cycle-time study's design at tf_ref is the 6 kg
