@@ -23,6 +23,7 @@ from jaxflex.model_sets import ModelId
 from jaxflex.optimize.cycle_time import TORQUE_TOL
 from jaxflex.optimize.study import StudyConfig, optimize_design
 from jaxflex.problem import Problem, Timing
+from jaxflex.progress import stage
 from jaxflex.optimize.study import verify as verify_trajectories
 
 from .io import atomic_path, fmt, provenance, save_figure, table, write_json
@@ -294,6 +295,8 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, out=None, verify=False, 
         ckpt = Path(out) / "checkpoint.npz"
     config = StudyConfig(checkpoint=ckpt, **study)
     study = optimize_design(Problem(robot, cycle, tuple(payloads), Timing(tf, 0.1, grid)), config)
+    figures = 2 + ("box" in study.sets)
+    bar = stage("study record and outputs", total=1 + (1 + figures if out else 0), unit="part")
     rec = {"payloads": list(study.payloads), "tf": tf, "blend": study.blend, "best_paper": study.best_paper,
            "train": study.train, "design": design_record(study),
            "laws": summary(study), "torque_bound_nm": study.torque_bound.tolist(),
@@ -305,15 +308,21 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, out=None, verify=False, 
            "grid": study.grid._asdict(),
            "provenance": provenance({"preset": preset, "payloads": list(payloads), "tf": tf,
                                      **config_record(config)}, started)}
+    bar.update(note="record")
     if out:
         out = Path(out)
         rows = trajectory_rows(robot.replace(payload=payloads[0]), study.paths["optimized"],
                                study.candidates["optimized"].law, tf)
         write_trajectory_csv(out / "trajectory.csv", rows)
+        bar.update(note="trajectory.csv")
         figure(study, out)
+        bar.update(note="design figure")
         error_figure(study, out / "error_series.png")
+        bar.update(note="error_series.png")
         if "box" in study.sets:
             box_figure(study, robot, out / "box_residuals.png")
+            bar.update(note="box_residuals.png")
+    bar.close("done")
     if verify:
         from jaxflex.compiled import release_compiled
         from jaxflex.profiles import make_profile

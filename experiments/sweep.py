@@ -19,7 +19,7 @@ def compute(preset: str = "default", payload: float = 6.0, tf: float = 0.43, dt:
     """Simulate every combination; returns the SPEC 7 sweep record."""
     started = time.time()
     robot, cycle = robot_preset(preset), cycle_preset(preset)
-    res = run_sweep(robot, cycle, [Case(payload, tf)], dwell=dwell, dt=dt, repeats=repeats)
+    res = run_sweep(robot, cycle, [Case(payload, tf)], dwell=dwell, dt=dt, repeats=repeats, progress=True)
     grid = res.grid
     return {"payload": payload, "tf": tf, "dt": tf / grid.steps, "dwell": dwell, "preset": preset,
             "results": results_table(res, 0),

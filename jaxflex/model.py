@@ -74,6 +74,52 @@ def layout(robot: Robot) -> Layout:
                   ee=np.arange(p0 + 6, p0 + 8))
 
 
+def _assemble(lay: Layout, a, e, p) -> jax.Array:
+    """The full-coordinate vector (N,) from its actuated (2,), elastic (ne,) and passive (8,) parts.
+
+    The layout is contiguous in that order (``layout``), so this is a concatenation: an indexed
+    update (``.at[idx].set``) would compile to a scatter, which XLA:CPU runs as a loop over its
+    indices (inside the batched remainder and, as the derivative of a gather, in its gradient)."""
+    assert lay.p[-1] == lay.n - 1 and lay.e[0] == lay.a[-1] + 1 and lay.p[0] == lay.e[-1] + 1
+    return jnp.concatenate([a, e, p])
+
+
+def _part(x, idx) -> jax.Array:
+    """x[idx] for a contiguous static index run (a slice, not a gather: a gather's derivative is a
+    scatter, see ``_assemble``)."""
+    idx = np.asarray(idx)
+    if idx.size == 0 or np.any(np.diff(idx) != 1):
+        raise ValueError("_part: the indices must be a non-empty run of consecutive integers")
+    return x[int(idx[0]):int(idx[-1]) + 1]
+
+
+def _embed_blocks(n: int, blocks) -> jax.Array:
+    """The (n, n) matrix with the square ``blocks`` [(matrix (k, k), full-coordinate indices (k,))]
+    at their indices and zeros elsewhere; the index sets must be disjoint.
+
+    Built from static slices and concatenations over the runs of consecutive coordinates that
+    belong to one block in order (the same values as adding the blocks into zeros with ``.at``,
+    without a scatter: see ``_assemble``)."""
+    owner, local = np.full(n, -1), np.zeros(n, int)
+    for b, (_, idx) in enumerate(blocks):
+        if np.any(owner[idx] >= 0):
+            raise ValueError("_embed_blocks: the blocks' index sets overlap")
+        owner[idx], local[idx] = b, np.arange(len(idx))
+    runs, i = [], 0                           # (start, stop, owning block or -1, its first local index)
+    while i < n:
+        j = i + 1
+        while j < n and owner[j] == owner[i] and (owner[i] < 0 or local[j] == local[j - 1] + 1):
+            j += 1
+        runs.append((i, j, owner[i], local[i]))
+        i = j
+    rows = []
+    for r0, r1, rb, rl in runs:
+        rows.append(jnp.concatenate([
+            blocks[rb][0][rl:rl + r1 - r0, cl:cl + c1 - c0] if rb >= 0 and rb == cb else jnp.zeros((r1 - r0, c1 - c0))
+            for c0, c1, cb, cl in runs], axis=1))
+    return jnp.concatenate(rows, axis=0)
+
+
 def _rot(th):
     c, s = jnp.cos(th), jnp.sin(th)
     return jnp.array([[c, -s], [s, c]])
@@ -182,8 +228,8 @@ def _axial_beam_mass(m, l, modes, th, qe):
 
 def _split(robot: Robot, q):
     lay = layout(robot)
-    e11, e12, e21, e22 = (q[i] for i in lay.e_beam)
-    return lay, q[lay.a], (e11, e12, e21, e22), q[lay.base12], q[lay.base22], q[lay.ee]
+    e11, e12, e21, e22 = (_part(q, i) for i in lay.e_beam)
+    return lay, _part(q, lay.a), (e11, e12, e21, e22), _part(q, lay.base12), _part(q, lay.base22), _part(q, lay.ee)
 
 
 def mass_matrix(robot: Robot, q) -> jax.Array:
@@ -191,7 +237,6 @@ def mass_matrix(robot: Robot, q) -> jax.Array:
     lay, qa, (e11, e12, e21, e22), b12, b22, _ = _split(robot, q)
     m1, m2 = _masses(robot)
     bend, ax = beam_modes("bending", robot.n_bending), beam_modes("axial", robot.n_axial)
-    out = jnp.zeros((lay.n, lay.n))
     pa, db, cp, cd, _, _ = _secondary(robot)
     p11, p12, p21, p22 = _beam_parts(robot, (e11, e12, e21, e22))
     prox = lambda th, e, parts: (_bending_beam_mass(m1, robot.l1, bend, th, e) if pa is None else
@@ -205,11 +250,12 @@ def mass_matrix(robot: Robot, q) -> jax.Array:
         (prox(qa[1], e21, p21)[2:, 2:], np.r_[lay.a[1], lay.e_beam[2]]),
         (dist(b22[2], e22, p22), np.r_[lay.base22, lay.e_beam[3]]),
     ]
-    for block, idx in blocks:
-        out = out.at[np.ix_(idx, idx)].add(block)
-    out = out.at[lay.ee, lay.ee].add(robot.payload)
-    out = out.at[lay.a, lay.a].add(robot.rotor_inertia)
-    return out
+    # rotor inertia on the motors' diagonal, the payload on the end effector's (the first and the
+    # last two coordinates)
+    assert list(lay.a) == [0, 1] and list(lay.ee) == [lay.n - 2, lay.n - 1]
+    diag = jnp.concatenate([jnp.broadcast_to(robot.rotor_inertia, (2,)), jnp.zeros(lay.n - 4),
+                            jnp.broadcast_to(robot.payload, (2,))])
+    return _embed_blocks(lay.n, blocks) + jnp.diag(diag)
 
 
 def potential(robot: Robot, q) -> jax.Array:
@@ -248,16 +294,15 @@ def damping_forces(robot: Robot, qd) -> jax.Array:
     m1, m2 = _masses(robot)
     bend, ax = beam_modes("bending", robot.n_bending), beam_modes("axial", robot.n_axial)
     alpha, beta = robot.damping[0], robot.damping[1]
-    out = jnp.zeros(lay.n)
     mp, md = m1 * jnp.asarray(bend.mass), m2 * jnp.asarray(ax.mass)
     sa, sb, _, _, kpa, kdb = _secondary(robot)
     if sa is not None:                       # block-diagonal: the two sets are orthogonal in the frame
         mp, kb = jax.scipy.linalg.block_diag(mp, m1 * jnp.asarray(sa.mass)), jax.scipy.linalg.block_diag(kb, kpa)
     if sb is not None:
         md, ka = jax.scipy.linalg.block_diag(md, m2 * jnp.asarray(sb.mass)), jax.scipy.linalg.block_diag(ka, kdb)
-    for idx, k, mm in zip(lay.e_beam, (kb, ka, kb, ka), (mp, md, mp, md)):
-        out = out.at[idx].set((alpha * jnp.asarray(mm) + beta * k) @ qd[idx])
-    return out
+    forces = [(alpha * jnp.asarray(mm) + beta * k) @ _part(qd, idx)          # the beams in order
+              for idx, k, mm in zip(lay.e_beam, (kb, ka, kb, ka), (mp, md, mp, md))]
+    return _assemble(lay, jnp.zeros(2), jnp.concatenate(forces), jnp.zeros(8))
 
 
 def tip_deflections(robot: Robot, qe):
@@ -268,7 +313,7 @@ def tip_deflections(robot: Robot, qe):
     bend, ax = beam_modes("bending", robot.n_bending), beam_modes("axial", robot.n_axial)
     tips = (bend.tip, ax.tip, bend.tip, ax.tip)
     sizes = (robot.n_bending, robot.n_axial, robot.n_bending, robot.n_axial)
-    return tuple(jnp.asarray(t) @ qe[idx[:n] - off] for t, idx, n in zip(tips, lay.e_beam, sizes))
+    return tuple(jnp.asarray(t) @ _part(qe, idx[:n] - off) for t, idx, n in zip(tips, lay.e_beam, sizes))
 
 
 def secondary_tips(robot: Robot, qe):
@@ -280,8 +325,8 @@ def secondary_tips(robot: Robot, qe):
     lay = layout(robot)
     off = lay.e[0]
     nb, na = robot.n_bending, robot.n_axial
-    prox = lambda idx: 0.0 if sa is None else jnp.asarray(sa.tip) @ qe[idx[nb:] - off]
-    dist = lambda idx: 0.0 if sb is None else jnp.asarray(sb.tip) @ qe[idx[na:] - off]
+    prox = lambda idx: 0.0 if sa is None else jnp.asarray(sa.tip) @ _part(qe, idx[nb:] - off)
+    dist = lambda idx: 0.0 if sb is None else jnp.asarray(sb.tip) @ _part(qe, idx[na:] - off)
     e11, e12, e21, e22 = lay.e_beam
     return prox(e11), dist(e12), prox(e21), dist(e22)
 
@@ -289,8 +334,8 @@ def secondary_tips(robot: Robot, qe):
 def constraints(robot: Robot, q) -> jax.Array:
     """Loop-closure constraints f1..f8 of Eq. 18 (8,) [m]."""
     lay, qa, (e11, e12, e21, e22), b12, b22, x = _split(robot, q)
-    u11, u12, u21, u22 = tip_deflections(robot, q[lay.e])
-    s11, s12, s21, s22 = secondary_tips(robot, q[lay.e]) or (0.0, 0.0, 0.0, 0.0)
+    u11, u12, u21, u22 = tip_deflections(robot, _part(q, lay.e))
+    s11, s12, s21, s22 = secondary_tips(robot, _part(q, lay.e)) or (0.0, 0.0, 0.0, 0.0)
     f12 = x - b12[:2] - robot.l2 * jnp.stack([jnp.cos(b12[2]), jnp.sin(b12[2])]) \
         - _rot(b12[2]) @ jnp.stack([u12, s12])
     f34 = x - b22[:2] - robot.l2 * jnp.stack([jnp.cos(b22[2]), jnp.sin(b22[2])]) \
@@ -349,7 +394,7 @@ def velocity_map(robot: Robot, q) -> jax.Array:
     The passive rows are the Jacobian of the closed-form loop closure ``passive``, which equals
     -A^-1 [C B] of Eq. 19 (implicit function theorem) without a linear solve."""
     lay = layout(robot)
-    return _velocity_map(robot, jnp.concatenate([q[lay.a], q[lay.e]]))
+    return _velocity_map(robot, _part(q, np.r_[lay.a, lay.e]))
 
 
 def _passive_of(robot):
@@ -397,7 +442,7 @@ def reduced(robot: Robot, qa, qe, qad, qed) -> Reduced:
     # closed-form q_p(q_i) along q_i' (equals -A^-1 gamma, gamma = f_qq[q', q'], without a solve)
     pas = _passive_of(robot)
     pdot = lambda x: jax.jvp(pas, (x,), (qid,))[1]
-    w_acc = jnp.zeros(lay.n).at[lay.p].set(jax.jvp(pdot, (qi,), (qid,))[1])
+    w_acc = _assemble(lay, jnp.zeros(2), jnp.zeros(lay.ne), jax.jvp(pdot, (qi,), (qid,))[1])
     mq, mdot_qd, dtdq = _mass_terms(robot, q, qd)
     h = mdot_qd - dtdq
     dv = jax.grad(lambda qq: potential(robot, qq))(q)
@@ -423,13 +468,11 @@ def residual(robot: Robot, qa, qe, qad, qed, qadd, qedd) -> jax.Array:
     (qp, qpd), (_, w_p) = jax.jvp(rate, (qi,), (qid,))      # q_p, q_p' = W_p q_i', w_p = q_p''|q_i''=0
     _, project = jax.vjp(pas, qi)                             # g_p -> W_p^T g_p
     qpdd = jax.jvp(pas, (qi,), (jnp.concatenate([qadd, qedd]),))[1] + w_p
-    q = jnp.zeros(lay.n).at[lay.a].set(qa).at[lay.e].set(qe).at[lay.p].set(qp)
-    qd = jnp.zeros(lay.n).at[lay.a].set(qad).at[lay.e].set(qed).at[lay.p].set(qpd)
-    qdd = jnp.zeros(lay.n).at[lay.a].set(qadd).at[lay.e].set(qedd).at[lay.p].set(qpdd)
+    q, qd, qdd = _assemble(lay, qa, qe, qp), _assemble(lay, qad, qed, qpd), _assemble(lay, qadd, qedd, qpdd)
     mq, mdot_qd, dtdq = _mass_terms(robot, q, qd)
     dv = jax.grad(lambda qq: potential(robot, qq))(q)
     gen = mq @ qdd + mdot_qd - dtdq + dv + damping_forces(robot, qd)
-    return jnp.concatenate([gen[lay.a], gen[lay.e]]) + project(gen[lay.p])[0]
+    return _part(gen, np.r_[lay.a, lay.e]) + project(_part(gen, lay.p))[0]
 
 
 def direct_dynamics(robot: Robot, qa, qe, qad, qed, tau):
@@ -458,7 +501,7 @@ def elastic_force(robot: Robot, qa, qe, external=None):
     wm = velocity_map(robot, q)
     gen = jax.grad(lambda qq: potential(robot, qq))(q)
     if external is not None:
-        gen = gen.at[lay.ee].add(-external)
+        gen = gen - jnp.concatenate([jnp.zeros(lay.n - 2), external])   # the end effector: the last two
     return (wm.T @ gen)[2:]
 
 

@@ -183,7 +183,8 @@ class _Frozen(NamedTuple):
 def _propagator(m, k, c, h, squarings):
     """Exact one-step maps of M q'' + C q' + K q = f0 + (f1 - f0) t/h, t in [0, h], for frozen M, K, C.
 
-    Returns (Phi, G0, G1) with x(h) = Phi x(0) + G0 f0 + G1 (f1 - f0), x = [q, q']. Works in
+    Returns (Phi, G0, G1, M^-1) with x(h) = Phi x(0) + G0 f0 + G1 (f1 - f0), x = [q, q'], and the
+    inverse mass from the Cholesky factor already at hand (L^-T L^-1). Works in
     mass-normalized coordinates z = L^T q (M = L L^T) with the velocity scaled by
     w = sqrt(trace(L^-1 K L^-T) / ne) so that ||A h|| is of the order of omega_max h; the forcing
     integrals follow from A^-1: G0 = A^-1 (Phi - I) B, G1 = A^-1 (G0 - h B) / h.
@@ -206,14 +207,14 @@ def _propagator(m, k, c, h, squarings):
     lt = li.T
     t_mat = jnp.block([[lt, zero], [zero, w * lt]])
     t_inv = jnp.block([[lower.T, zero], [zero, lower.T / w]])
-    return t_mat @ phi_y @ t_inv, t_mat @ g0_y @ li, t_mat @ g1_y @ li
+    return t_mat @ phi_y @ t_inv, t_mat @ g0_y @ li, t_mat @ g1_y @ li, lt @ li
 
 
 def _frozen(c: SlowCoeffs, ds, dds, h, squarings) -> _Frozen:
     k, cc = c.stiffness_damping(ds, dds)
     tq, tv = c.torque_maps(ds, dds)
-    phi, g0, g1 = _propagator(c.mass, k, cc, h, squarings)
-    return _Frozen(phi, g0, g1, c.mass, linalg.inv(c.mass), k, cc, tq, tv, c.m_ae)
+    phi, g0, g1, minv = _propagator(c.mass, k, cc, h, squarings)
+    return _Frozen(phi, g0, g1, c.mass, minv, k, cc, tq, tv, c.m_ae)
 
 
 def _recurrence(phi, x0, b, unroll, keep: bool = True):
@@ -383,16 +384,19 @@ def first_pass(tables: Tables, prep: Prepared, samples: MotionSamples, grid: Gri
     qdd1_start = acc(f_start, x1)
     qdd1_end = acc(f_end, x1_end)                                    # left limits (same interval)
 
-    # ---- 1. coefficients linear in time between the coarse boundaries
-    first, last = np.arange(nc) * m, np.arange(nc) * m + m - 1
-    s_b = jnp.concatenate([samples.start[0][first], samples.end[0][-1:]])
+    # ---- 1. coefficients linear in time between the coarse boundaries (the first and last fine
+    # step of every interval as strided slices: static index gathers would turn into scatter loops
+    # in the gradient)
+    first = lambda a: a.reshape(nc, m)[:, 0]
+    last = lambda a: a.reshape(nc, m)[:, m - 1]
+    s_b = jnp.concatenate([first(samples.start[0]), samples.end[0][-1:]])
     cb = _interp(tables.slow(), s_b)
 
     def mkc(c: SlowCoeffs, ds, dds):
         return (c.mass,) + c.stiffness_damping(ds, dds)
-    at_b = lambda idx: jax.tree_util.tree_map(lambda a: a[idx], cb)
-    m0, k0, c0 = jax.vmap(mkc)(at_b(np.arange(nc)), samples.start[1][first], samples.start[2][first])
-    m1, k1, c1 = jax.vmap(mkc)(at_b(np.arange(1, nc + 1)), samples.end[1][last], samples.end[2][last])
+    at_b = lambda lo, hi: jax.tree_util.tree_map(lambda a: a[lo:hi], cb)
+    m0, k0, c0 = jax.vmap(mkc)(at_b(0, nc), first(samples.start[1]), first(samples.start[2]))
+    m1, k1, c1 = jax.vmap(mkc)(at_b(1, nc + 1), last(samples.end[1]), last(samples.end[2]))
     tau = np.arange(m + 1) / m
 
     def corr(tt, x, qdd):     # dM q'' + dC q' + dK q at the fractions tt (m,) of every interval -> (N, ne)

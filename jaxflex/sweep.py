@@ -21,6 +21,7 @@ from jaxflex.linearized import Tables, coeffs_many, robot_table_poses
 from jaxflex.metrics import METRICS
 from jaxflex.path import check_path_args, make_path
 from jaxflex.profiles import PROFILES, make_profile
+from jaxflex.progress import stage
 from jaxflex.robot import Robot, check_cycle_reachable
 from jaxflex.simulate import Grid, check_grid, sample_motion
 
@@ -140,7 +141,7 @@ class SweepResult(NamedTuple):
 def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES, *, d=0.025, e=None, n=3.0,
               dwell: float = 0.1, dt: float | None = None, blends=BLENDS, profiles=PROFILES,
               grid: Grid | None = None, with_series: bool = False, repeats: int = 1,
-              second_order: bool = True, timed: bool = True) -> SweepResult:
+              second_order: bool = True, timed: bool = True, progress: bool = False) -> SweepResult:
     """Simulate every blend x profile x case; validate inputs first (no compilation on bad input).
 
     Three compiled stages, each shared with the rest of the library: the table poses (one program per
@@ -156,6 +157,7 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES, *, d=0.0
     second-order remainder (``simulate.rollout``): agreement with the full nonlinear model within
     about 0.3 % on every metric; False gives the linearized model (still two passes, the second one
     making the coefficients continuous; ``grid=Grid(..., continuous=False)`` makes it one pass).
+    ``progress``: report the stages on stderr (``jaxflex.progress``; the CLI's commands turn it on).
     """
     e = d if e is None else e
     blends, profiles, cases = tuple(blends), tuple(profiles), tuple(Case(*c) for c in cases)
@@ -178,9 +180,13 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES, *, d=0.0
     check_grid(grid)
     payloads = jnp.asarray([c.payload for c in cases])
     d_, e_, n_ = (jnp.asarray(v, dtype=float) for v in (d, e, n))
+    runs_total = len(blends) * len(profiles) * len(cases)
+    bar = stage(f"sweep of {runs_total} rollouts", total=1 + (repeats if timed else 0), unit="sweep",
+                enabled=progress)
     t0 = time.perf_counter()
-    values, breaks, lengths = _stacked_tables(robot, cycle, payloads, blends, d_, e_, n_)
-    values = jax.block_until_ready(values)
+    with bar.waiting("path tables (compiling unless cached)", key="sweep-tables"):
+        values, breaks, lengths = _stacked_tables(robot, cycle, payloads, blends, d_, e_, n_)
+        values = jax.block_until_ready(values)
     tables_s = time.perf_counter() - t0
     robots = [robot.replace(payload=c.payload) for c in cases]
     tf_list = [c.tf for c in cases]
@@ -190,13 +196,17 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES, *, d=0.0
         return engine.metrics_of(series), series
 
     t0 = time.perf_counter()
-    mets, series = jax.block_until_ready(sweep())
+    with bar.waiting("the first sweep (compiling the rollout unless cached)", key="sweep-first"):
+        mets, series = jax.block_until_ready(sweep())
     first = time.perf_counter() - t0
+    bar.update(note="first sweep")
     runs = []
     for _ in range(repeats if timed else 0):
         t0 = time.perf_counter()
         mets, series = jax.block_until_ready(sweep())
         runs.append(time.perf_counter() - t0)
+        bar.update(note="timed sweep")
+    bar.close("done")
     run_s = float(np.median(runs)) if runs else float("nan")
     _check_finite(mets, blends, profiles, cases)
     compile_s = max(first - run_s, 0.0) if runs else first

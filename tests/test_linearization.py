@@ -145,9 +145,11 @@ def test_propagator_is_the_exact_solution_of_the_frozen_system(setup):
     c = jax.tree_util.tree_map(lambda a: a[70], tables.values)
     m, k, cc, *_ = evaluate(c, 1.2, 5.0)
     h = 1e-4
-    phi, g0, g1 = _propagator(m, k, cc, h, 10)
+    phi, g0, g1, minv_ours = _propagator(m, k, cc, h, 10)
     n = 12
     minv = jnp.linalg.inv(m)
+    # the inverse mass from the propagator's Cholesky factor equals LAPACK's inverse to round-off
+    np.testing.assert_allclose(np.asarray(minv_ours), np.asarray(minv), rtol=0, atol=1e-12 * float(jnp.abs(minv).max()))
     # velocities scaled by w ~ omega_max (y = [q, q' / w]) so that the exponential is well scaled
     w = float(jnp.sqrt(jnp.max(jnp.abs(jnp.linalg.eigvals(minv @ k)))))
     a = jnp.block([[jnp.zeros((n, n)), w * jnp.eye(n)], [-minv @ k / w, -minv @ cc]])
