@@ -63,7 +63,7 @@ def compute(quick: bool = False) -> dict:
     ext = {}
     for label, (blend, e) in EXTENDED.items():
         print(f"  extended blend {label} (d = 25 mm, e = {e * 1e3:g} mm) ...", flush=True)
-        r = run_sweep(robot, cycle, PAPER_CASES, d=0.025, e=e, blends=(blend,), timed=False, progress=True)
+        r = run_sweep(robot, cycle, PAPER_CASES, d=0.025, e=e, blends=(blend,), timed=False)
         ext[label] = {str(k): {m: {p: float(r.metrics[m][0, j, k]) for j, p in enumerate(r.profiles)}
                           for m in METRICS} for k in range(len(PAPER_CASES))}
     out["extended"] = ext
