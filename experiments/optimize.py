@@ -16,7 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxflex.path import path_frame
-from jaxflex.profiles import profile_eval
+from jaxflex.profiles import profile_eval, profile_values
 from jaxflex.robot import cycle_preset, igm, robot_preset
 from jaxflex.trajectory import task_from_arc
 from jaxflex.model_sets import ModelId
@@ -215,7 +215,7 @@ def figure(study, out_dir: Path):
     eta = jnp.linspace(0, 1, 400)
     fig, ax = plt.subplots(1, 3, figsize=(15, 3.8))
     for p, lab in ((best, f"{study.best_paper} (best paper)"), (make_profile("poly7"), "poly7"), (opt, "optimized")):
-        v = profile_eval(p, eta)
+        v = profile_values(p, eta)
         ax[0].plot(eta, v.ds, label=lab)
         ax[1].plot(eta, v.dds, label=lab)
     ax[0].set(xlabel="t / tf", ylabel="S'", title="motion law: velocity")

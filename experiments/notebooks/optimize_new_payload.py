@@ -64,7 +64,7 @@ from jaxflex.optimize.objective import TORQUE_WEIGHT, Scales, law_objective
 from jaxflex.optimize.study import StudyConfig, optimize_design
 from jaxflex.path import make_path
 from jaxflex.problem import Problem, Timing
-from jaxflex.profiles import PROFILES, make_profile, profile_eval, shaped
+from jaxflex.profiles import PROFILES, make_profile, profile_values, shaped
 from jaxflex.robot import cycle_preset, robot_preset
 from jaxflex.sweep import Case, default_grid, run_sweep, sweep_tables
 
@@ -206,9 +206,8 @@ eta = jnp.linspace(0.0, 1.0, 401)
 curves = {f"{best_law} (best paper)": make_profile(best_law), "poly7": make_profile("poly7"),
           "optimized": shaped(jnp.asarray(coef), name="optimized")}
 fig, ax = plt.subplots(1, 2, figsize=(11, 3.8))
-shaped_values = jax.jit(profile_eval)   # the shaped law: one small compilation beats eager op-by-op
 for label, prof in curves.items():
-    v = (shaped_values if prof.kind == "shaped" else profile_eval)(prof, eta)
+    v = profile_values(prof, eta)       # one small compiled program per law, not op by op
     ax[0].plot(eta, v.ds, label=label)
     ax[1].plot(eta, v.dds, label=label)
 ax[0].set(xlabel="t / tf", ylabel="S'", title="motion law: velocity")
