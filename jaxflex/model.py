@@ -81,6 +81,7 @@ def _assemble(lay: Layout, a, e, p) -> jax.Array:
     update (``.at[idx].set``) would compile to a scatter, which XLA:CPU runs as a loop over its
     indices (inside the batched remainder and, as the derivative of a gather, in its gradient)."""
     assert lay.p[-1] == lay.n - 1 and lay.e[0] == lay.a[-1] + 1 and lay.p[0] == lay.e[-1] + 1
+    assert list(lay.ee) == list(lay.p[6:8])
     return jnp.concatenate([a, e, p])
 
 
@@ -250,11 +251,10 @@ def mass_matrix(robot: Robot, q) -> jax.Array:
         (prox(qa[1], e21, p21)[2:, 2:], np.r_[lay.a[1], lay.e_beam[2]]),
         (dist(b22[2], e22, p22), np.r_[lay.base22, lay.e_beam[3]]),
     ]
-    # rotor inertia on the motors' diagonal, the payload on the end effector's (the first and the
-    # last two coordinates)
-    assert list(lay.a) == [0, 1] and list(lay.ee) == [lay.n - 2, lay.n - 1]
-    diag = jnp.concatenate([jnp.broadcast_to(robot.rotor_inertia, (2,)), jnp.zeros(lay.n - 4),
-                            jnp.broadcast_to(robot.payload, (2,))])
+    # rotor inertia on the motors' diagonal, the payload on the end effector's (the last two passive
+    # coordinates, ``layout``)
+    diag = _assemble(lay, jnp.broadcast_to(robot.rotor_inertia, (2,)), jnp.zeros(lay.ne),
+                     jnp.concatenate([jnp.zeros(6), jnp.broadcast_to(robot.payload, (2,))]))
     return _embed_blocks(lay.n, blocks) + jnp.diag(diag)
 
 
@@ -501,7 +501,7 @@ def elastic_force(robot: Robot, qa, qe, external=None):
     wm = velocity_map(robot, q)
     gen = jax.grad(lambda qq: potential(robot, qq))(q)
     if external is not None:
-        gen = gen - jnp.concatenate([jnp.zeros(lay.n - 2), external])   # the end effector: the last two
+        gen = gen - _assemble(lay, jnp.zeros(2), jnp.zeros(lay.ne), jnp.concatenate([jnp.zeros(6), external]))
     return (wm.T @ gen)[2:]
 
 
