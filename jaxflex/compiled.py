@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import gc
 import multiprocessing
+import os
 import threading
 from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 
@@ -35,19 +36,24 @@ from jaxflex import heap
 _CONFIG = ("jax_enable_x64", "jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs")
 
 # XLA options of the hot programs, compiled once and then run many times: the engine's rollout
-# (thousands of steps, hundreds of runs per study), the value and gradient of a long optimization
-# (hundreds of steps; ``optimize.loop.is_hot``), the coefficient program of every table build
-# (``linearized.coeffs_many``: hundreds of chunks per workspace), the table poses and the locked
-# modes at a point. They override XLA_FLAGS for these programs only. Measured cold on 2 cores:
+# (thousands of steps, hundreds of runs per study) and the value and gradient of a long optimization
+# (hundreds of steps; ``optimize.loop.is_hot``). They override XLA_FLAGS for these programs only.
+# Measured cold on 2 cores:
 # - LLVM level 1 runs them as fast as level 3 and compiles them sooner (the gradient: 126 ms per
 #   step and 42 s to compile, against 147 ms and 50 s at the default level 3); at level 0 (the test
 #   suite's global setting, which cuts the compile time of its run-once programs by a third) they
 #   would run 2.3-2.9x slower;
-# - XLA's classic elemental emitters instead of the fusion emitters compile the gradient sooner;
-# - the coefficient program (252 poses per chunk) compiles in 10.5 s instead of 17.3 s and runs as
-#   fast (127 against 121 ms per chunk), the locked modes at a point in 4.0 s instead of 6.0 s (at
-#   level 0 the coefficients would compile in 7.7 s but run 2.2x slower).
+# - XLA's classic elemental emitters instead of the fusion emitters compile the gradient sooner.
 HOT_LOOP = {"xla_backend_optimization_level": 1, "xla_cpu_use_fusion_emitters": False}
+
+# XLA options of the other large programs, compiled once per process and run from a few to hundreds
+# of times: the coefficient program of every table build (``linearized.coeffs_many``), the table
+# poses and the locked modes at a point. The hot programs' options, unless XLA_FLAGS choose an
+# optimization level themselves (the test suite's level 0, for its run-once programs). Measured
+# cold on 2 cores: the coefficient program (252 poses per chunk) compiles in 10.5 s instead of
+# 17.3 s at the default level 3 and runs as fast (127 against 121 ms per chunk; at level 0: 7.7 s
+# and 2.2x slower), the locked modes at a point in 4.0 s instead of 6.0 s.
+BUILD = None if "xla_backend_optimization_level" in os.environ.get("XLA_FLAGS", "") else HOT_LOOP
 
 
 def mapping_count() -> int | None:

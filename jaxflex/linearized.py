@@ -31,7 +31,7 @@ import numpy as np
 
 from jaxflex import model as mdl
 from jaxflex import trees
-from jaxflex.compiled import HOT_LOOP
+from jaxflex.compiled import BUILD
 from jaxflex.parallel import host_map
 from jaxflex.path import Path, path_frame
 from jaxflex.robot import Robot, joint_motion
@@ -251,7 +251,7 @@ COEFF_CHUNK = sum(SEGMENT_NODES)   # poses per call of the shared coefficient pr
                          # is one call, larger sets (sweeps, workspaces) a few (padding costs compute)
 
 
-@functools.partial(jax.jit, compiler_options=HOT_LOOP)
+@functools.partial(jax.jit, compiler_options=BUILD)
 def _coeffs_chunk(robot: Robot, qa, qa1, qa2) -> Coeffs:
     return coeffs_at(robot, qa, qa1, qa2)
 
@@ -325,7 +325,7 @@ def _coeffs_many(robot: Robot, qa, qa1, qa2) -> Coeffs:
     return trees.stack(out) if stacked else out[0]
 
 
-_table_poses = jax.jit(table_poses, compiler_options=HOT_LOOP)        # one program per blend family, shared by every caller
+_table_poses = jax.jit(table_poses, compiler_options=BUILD)        # one program per blend family, shared by every caller
 
 
 def robot_table_poses(robot: Robot, path: Path):

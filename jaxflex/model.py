@@ -41,7 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxflex import linalg
-from jaxflex.compiled import HOT_LOOP
+from jaxflex.compiled import BUILD
 from jaxflex.beams import beam_modes, cross_mass
 from jaxflex.robot import Robot, check_reachable, circle_intersection, igm
 
@@ -549,7 +549,7 @@ def _frequencies_at_point(robot: Robot, x):
     return locked_modes(robot, igm(robot, x))[0]
 
 
-_frequencies_at_point_jit = jax.jit(_frequencies_at_point, compiler_options=HOT_LOOP)
+_frequencies_at_point_jit = jax.jit(_frequencies_at_point, compiler_options=BUILD)
 
 
 def modes_at_point(robot: Robot, x):
