@@ -325,7 +325,8 @@ def _coeffs_many(robot: Robot, qa, qa1, qa2) -> Coeffs:
     return trees.stack(out) if stacked else out[0]
 
 
-_table_poses = jax.jit(table_poses, compiler_options=BUILD)        # one program per blend family, shared by every caller
+# one program per blend family, shared by every caller
+_table_poses = jax.jit(table_poses, compiler_options=BUILD)
 
 
 def robot_table_poses(robot: Robot, path: Path):
