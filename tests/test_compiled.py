@@ -182,3 +182,22 @@ def test_xdist_groups_take_effect(request):
     if not os.environ.get("PYTEST_XDIST_WORKER") or not getattr(request.config.option, "loadgroup", False):
         pytest.skip("not run by xdist with --dist loadgroup")
     assert request.node.nodeid.endswith("@grouping-check"), request.node.nodeid
+
+
+@pytest.mark.parametrize("flags, expected", [
+    ("", "hot"),
+    ("--xla_cpu_multi_thread_eigen=false", "hot"),
+    ("--xla_backend_optimization_level=0", "none"),
+])
+def test_build_programs_take_the_hot_options_unless_xla_flags_set_a_level(flags, expected):
+    """``compiled.BUILD`` (the coefficient, table-pose and locked-mode programs): LLVM level 1 and the
+    classic emitters, unless XLA_FLAGS choose an optimization level (the test suite's level 0), read
+    once at import, in a fresh process with the given XLA_FLAGS."""
+    import subprocess
+    import sys
+    env = dict(os.environ, XLA_FLAGS=flags)
+    code = ("from jaxflex import compiled; print('none' if compiled.BUILD is None else "
+            "'hot' if compiled.BUILD == compiled.HOT_LOOP else 'other')")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == expected
