@@ -130,6 +130,18 @@ class Coeffs(NamedTuple):
         return FastCoeffs(*(getattr(self, k) for k in FastCoeffs._fields))
 
 
+def coeff_shapes(robot: Robot) -> Coeffs:
+    """The shapes and dtypes of ``pose_coeffs(robot, ...)`` (``jax.ShapeDtypeStruct`` leaves, float64)
+    from the robot's mode counts alone: no trace of the model (tracing it takes seconds, which
+    ``workspace.workspace_shapes`` would spend before anything can start compiling)."""
+    ne = mdl.layout(robot).ne
+    square, row, vec, pair = (ne, ne), (2, ne), (ne,), (2,)
+    shapes = dict(mass=square, m_ae=row, f0=vec, f1=vec, f2=vec, k0=square, k1=square, k2=square, c0=square,
+                  c1=square, t0=pair, t1=pair, t2=pair, tq0=row, tq1=row, tq2=row, tv0=row, tv1=row, jx=row,
+                  jx1=row, jx2=row, qa=pair, qa1=pair, qa2=pair)
+    return Coeffs(**{k: jax.ShapeDtypeStruct(v, jnp.float64) for k, v in shapes.items()})
+
+
 def pose_coeffs(robot: Robot, qa, qa1, qa2) -> Coeffs:
     """Coefficients at motor angles qa (2,) with path derivatives qa1 = dq_a/ds, qa2 = d2q_a/ds2."""
     ne = mdl.layout(robot).ne

@@ -227,3 +227,20 @@ def test_coeffs_many_remembers_its_results_by_content(setup):
     assert again is not a
     for x, y in zip(jax.tree_util.tree_leaves(again), jax.tree_util.tree_leaves(a)):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))
+
+
+@pytest.mark.parametrize("richer", [False, True], ids=["paper", "richer"])
+def test_coefficient_shapes_without_a_trace_equal_the_traced_ones(richer):
+    """``coeff_shapes`` (the coefficients' shapes from the mode counts, which ``workspace_shapes``
+    uses instead of tracing the model) equals ``jax.eval_shape`` of ``pose_coeffs`` field by field,
+    for the paper model and the richer one (other mode counts)."""
+    from jaxflex.linearized import coeff_shapes, pose_coeffs
+
+    robot = robot_preset("default").replace(payload=6.0)
+    robot = mdl.richer(robot, 2) if richer else robot
+    pose = jax.ShapeDtypeStruct((2,), jnp.float64)
+    traced = jax.eval_shape(pose_coeffs, robot, pose, pose, pose)
+    declared = coeff_shapes(robot)
+    assert traced._fields == declared._fields
+    for name, t, d in zip(traced._fields, traced, declared):
+        assert (t.shape, t.dtype) == (d.shape, d.dtype), name
