@@ -41,8 +41,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxflex import linalg
-from jaxflex.compiled import BUILD
 from jaxflex.beams import beam_modes, cross_mass
+from jaxflex.compiled import BUILD
 from jaxflex.robot import Robot, check_reachable, circle_intersection, igm
 
 

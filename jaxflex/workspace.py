@@ -37,6 +37,7 @@ from jaxflex.robot import Robot, check_reachable, igm, joint_motion
 ORDER0 = ("mass", "m_ae", "f0", "k0", "c0", "t0", "tq0", "tv0", "jx")       # pose only
 ORDER1 = ("f1", "k1", "c1", "t1", "tq1", "tv1", "jx1")                     # linear in qa1
 ORDER2 = ("f2", "k2", "t2", "tq2", "jx2")                                  # quadratic in qa1, linear in qa2
+FIELDS = ORDER0 + ORDER1 + ORDER2                                          # every field of the workspace
 MONOMIALS = {0: (0,), 1: (1, 2), 2: (3, 4, 5, 6, 7)}   # indices into [1, a, b, a^2, ab, b^2, c, d]
 # the (qa1, qa2) at which pose_coeffs is evaluated: e1, e2, e1 + e2 (qa1); e1, e2 (qa2). Each field
 # is a polynomial with only its class's monomials (``MONOMIALS``: exact, the model being quadratic in
@@ -74,7 +75,7 @@ def _combine(ev: dict) -> dict:
     """The monomial coefficients B of every field (field -> (k, ...)) from ``pose_coeffs`` at the
     five probes ``_PROBES`` (field -> (5, ...))."""
     out = {}
-    for name in ORDER0 + ORDER1 + ORDER2:
+    for name in FIELDS:
         e = ev[name]
         order = _order(name)
         if order == 0:
@@ -96,7 +97,7 @@ def _basis_full(robot: Robot, qa):
     the monomial coefficients."""
     probes = jnp.asarray(_PROBES)
     ev = jax.vmap(lambda p: pose_coeffs(robot, qa, p[:2], p[2:]))(probes)._asdict()
-    return {k: v for k, v in ev.items() if k in ORDER0 + ORDER1 + ORDER2}
+    return {k: v for k, v in ev.items() if k in FIELDS}
 
 
 def grid_points(cycle: Cycle, shape: tuple[int, int]):
@@ -134,7 +135,7 @@ def build_workspace(robot: Robot, cycle: Cycle, spacing: float = 0.005) -> Works
     ev = coeffs_many(robot if stacked else robots[0], np.repeat(qa, p, axis=1) if stacked else np.repeat(qa[0], p, axis=0),
                      probes[:, :2], probes[:, 2:])._asdict()
     lead = (len(robots),) if stacked else ()
-    ev = {k: v.reshape((-1, p) + v.shape[len(lead) + 1:]) for k, v in ev.items() if k in ORDER0 + ORDER1 + ORDER2}
+    ev = {k: v.reshape((-1, p) + v.shape[len(lead) + 1:]) for k, v in ev.items() if k in FIELDS}
     values = {k: v.reshape(lead + (nu, nv) + v.shape[1:]) for k, v in _combine_all(ev).items()}
     step = jnp.stack([cycle.l / (nu - 1), cycle.h / (nv - 1)])
     ws = Workspace(values=values, origin=jnp.asarray(cycle.pick, dtype=float), axes=jnp.asarray(cycle.basis), step=step)
@@ -154,8 +155,8 @@ def workspace_shapes(robot: Robot, cycle: Cycle, spacing: float = 0.005) -> Work
     nu, nv = grid_shape(cycle, spacing)
     lead = np.shape(robot.payload)[:1]
     probes = len(_PROBES)
-    full = {k: jax.ShapeDtypeStruct((probes,) + v.shape, v.dtype) for k, v in coeff_shapes(robot)._asdict().items()
-            if k in ORDER0 + ORDER1 + ORDER2}
+    shapes = coeff_shapes(robot)._asdict()
+    full = {k: jax.ShapeDtypeStruct((probes,) + v.shape, v.dtype) for k, v in shapes.items() if k in FIELDS}
     basis = jax.eval_shape(_combine, full)
     struct = lambda shape: jax.ShapeDtypeStruct(lead + shape, jnp.float64)
     return Workspace(values={k: struct((nu, nv) + v.shape) for k, v in basis.items()},
