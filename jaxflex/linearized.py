@@ -12,11 +12,13 @@ and the end-effector error e = X(q_a, q_e) - X(q_a, 0) = J(s) q_e + O(q_e^2), so
     e' = J q_e' + J1 s' q_e,   e'' = J q_e'' + 2 J1 s' q_e' + (J2 s'^2 + J1 s'') q_e.
 
 Every coefficient is a function of the pose only. The polynomial dependence on (s', s'') is exact
-(the equations are quadratic in velocities and linear in accelerations), so each coefficient is
-recovered from three evaluations of the nonlinear model, (s', s'') = (0, 0), (1, 0), (0, 1), with
-forward-mode Jacobians w.r.t. (q_e, q_e'). The coefficients are tabulated on per-segment uniform
-grids of the path (line, blend, traverse, blend, line) and interpolated with local cubics, which
-keeps their one-sided smoothness at the G2 joins. The tables do not depend on the motion law or tf.
+(the equations are quadratic in velocities and linear in accelerations), so each coefficient is one
+term of the nonlinear model's residual (``model.residual_term``: the potential at rest, the inertia
+per unit s'', the motion per unit s'^2) or its forward-mode Jacobian w.r.t. q_e or q_e'; the
+damping C0 is the Rayleigh damping matrix, and T_v has no term at rest. The coefficients are
+tabulated on per-segment uniform grids of the path (line, blend, traverse, blend, line) and
+interpolated with local cubics, which keeps their one-sided smoothness at the G2 joins. The tables
+do not depend on the motion law or tf.
 """
 from __future__ import annotations
 
@@ -145,24 +147,23 @@ def coeff_shapes(robot: Robot) -> Coeffs:
 def pose_coeffs(robot: Robot, qa, qa1, qa2) -> Coeffs:
     """Coefficients at motor angles qa (2,) with path derivatives qa1 = dq_a/ds, qa2 = d2q_a/ds2."""
     ne = mdl.layout(robot).ne
-    zero_e = jnp.zeros(ne)
+    zero_e, zero2 = jnp.zeros(ne), jnp.zeros(2)
 
-    def residual(z, qad, qadd):
-        return mdl.residual(robot, qa, z[:ne], qad, z[ne:], qadd, zero_e)
+    def term(name, qad, qadd):
+        """A term of the residual (``model.residual_term``) and its Jacobian by q_e, at q_e = 0."""
+        f = lambda qe: mdl.residual_term(robot, qa, qe, name, qad, zero_e, qadd)
+        return f(zero_e), jax.jacfwd(f)(zero_e)
 
-    def at(qad, qadd):
-        z0 = jnp.zeros(2 * ne)
-        return residual(z0, qad, qadd), jax.jacfwd(residual)(z0, qad, qadd)
-
-    zero2 = jnp.zeros(2)
-    # (s', s'') = (0, 0), (1, 0), (0, 1): one vmapped trace of the model (a third of the compile time)
-    qads = jnp.stack([zero2, qa1, zero2])
-    qadds = jnp.stack([zero2, qa2, qa1])
-    rs, js = jax.vmap(at)(qads, qadds)
-    (r00, r10, r01), (j00, j10, j01) = rs, js
+    # the residual at (s', s'') is potential + s'' inertia(q_a,s) + motion(s' q_a,s, s'^2 q_a,ss) +
+    # damping, and the motion term is quadratic in s': so at rest, per unit s'' and per unit s'^2
+    r0, j0 = term("potential", zero2, zero2)
+    r1, j1 = term("inertia", zero2, qa1)
+    r2, j2 = term("motion", qa1, qa2)
+    # by q_e': the damping matrix (the residual's only term linear in q_e' at rest: the motion term is
+    # quadratic in the velocities), and the motion term's (gyroscopic) Jacobian per unit s'
+    jv = jax.jacfwd(lambda qed: mdl.residual_term(robot, qa, zero_e, "motion", qa1, qed, qa2))(zero_e)
     m = mdl.reduced(robot, qa, zero_e, zero2, zero_e).mass
     e, a = slice(2, None), slice(0, 2)
-    q, v = slice(0, ne), slice(ne, None)
 
     def jx_of(qq):
         return jax.jacfwd(lambda x: mdl.ee_position(robot, qq, x))(zero_e)
@@ -172,12 +173,12 @@ def pose_coeffs(robot: Robot, qa, qa1, qa2) -> Coeffs:
     jx2 = jax.jvp(d_jx1, (qa,), (qa1,))[1] + jax.jvp(jx_of, (qa,), (qa2,))[1]
     return Coeffs(
         mass=m[e, e], m_ae=m[a, e],
-        f0=-r00[e], f1=-(r01 - r00)[e], f2=-(r10 - r00)[e],
-        k0=j00[e, q], k1=(j01 - j00)[e, q], k2=(j10 - j00)[e, q],
-        c0=j00[e, v], c1=(j10 - j00)[e, v],
-        t0=r00[a], t1=(r01 - r00)[a], t2=(r10 - r00)[a],
-        tq0=j00[a, q], tq1=(j01 - j00)[a, q], tq2=(j10 - j00)[a, q],
-        tv0=j00[a, v], tv1=(j10 - j00)[a, v],
+        f0=-r0[e], f1=-r1[e], f2=-r2[e],
+        k0=j0[e], k1=j1[e], k2=j2[e],
+        c0=mdl.damping_matrix(robot), c1=jv[e],
+        t0=r0[a], t1=r1[a], t2=r2[a],
+        tq0=j0[a], tq1=j1[a], tq2=j2[a],
+        tv0=jnp.zeros((2, ne)), tv1=jv[a],
         jx=jx, jx1=jx1, jx2=jx2, qa=qa, qa1=qa1, qa2=qa2,
     )
 

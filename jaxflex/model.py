@@ -451,16 +451,11 @@ def reduced(robot: Robot, qa, qe, qad, qed) -> Reduced:
     return Reduced(mass=wm.T @ mq @ wm, force=wm.T @ gen, q=q, qd=qd, w_map=wm, w_acc=w_acc)
 
 
-def residual(robot: Robot, qa, qe, qad, qed, qadd, qedd) -> jax.Array:
-    """M_r [q_a''; q_e''] + F (2 + ne,) at the state (q_a, q_e, q_a', q_e') and accelerations
-    (q_a'', q_e''): the reduced equations' left-hand side (``reduced``), [N m; N].
-
-    The same quantity as ``reduced(...).mass @ acc + reduced(...).force`` to round-off, without
-    forming W or M_r: W v = [v; dq_p/dq_i v] and W^T g = g_i + (dq_p/dq_i)^T g_p are directional
-    derivatives of the closed-form loop closure (two JVPs and one VJP instead of its (8, 2 + ne)
-    Jacobian and the (N, N) x (N, 2 + ne) products); about 0.6x the cost of ``reduced``. The
-    linearization coefficients (``linearized.pose_coeffs``) and the second-order remainder
-    (``linearized.remainder``) evaluate it."""
+def _moving_state(robot: Robot, qa, qe, qad, qed, qadd, qedd):
+    """(layout, q, q', q'', project) at the state (q_a, q_e, q_a', q_e') and accelerations (q_a'',
+    q_e''): the full coordinates, velocities and accelerations from the closed-form loop closure's
+    directional derivatives (W v = [v; dq_p/dq_i v], q_p'' = W_p q_i'' + w_p), and ``project``, the
+    VJP g_p -> (W_p^T g_p,) of the closure (W^T g = g_i + W_p^T g_p)."""
     lay = layout(robot)
     qi = jnp.concatenate([qa, qe])
     qid = jnp.concatenate([qad, qed])
@@ -469,11 +464,70 @@ def residual(robot: Robot, qa, qe, qad, qed, qadd, qedd) -> jax.Array:
     (qp, qpd), (_, w_p) = jax.jvp(rate, (qi,), (qid,))      # q_p, q_p' = W_p q_i', w_p = q_p''|q_i''=0
     _, project = jax.vjp(pas, qi)                             # g_p -> W_p^T g_p
     qpdd = jax.jvp(pas, (qi,), (jnp.concatenate([qadd, qedd]),))[1] + w_p
-    q, qd, qdd = _assemble(lay, qa, qe, qp), _assemble(lay, qad, qed, qpd), _assemble(lay, qadd, qedd, qpdd)
+    return lay, _assemble(lay, qa, qe, qp), _assemble(lay, qad, qed, qpd), _assemble(lay, qadd, qedd, qpdd), project
+
+
+def _projected(lay: Layout, gen, project) -> jax.Array:
+    """W^T g (2 + ne,) of a generalized force g (N,) on the full coordinates."""
+    return _part(gen, np.r_[lay.a, lay.e]) + project(_part(gen, lay.p))[0]
+
+
+def residual(robot: Robot, qa, qe, qad, qed, qadd, qedd) -> jax.Array:
+    """M_r [q_a''; q_e''] + F (2 + ne,) at the state (q_a, q_e, q_a', q_e') and accelerations
+    (q_a'', q_e''): the reduced equations' left-hand side (``reduced``), [N m; N].
+
+    The same quantity as ``reduced(...).mass @ acc + reduced(...).force`` to round-off, without
+    forming W or M_r: W v = [v; dq_p/dq_i v] and W^T g = g_i + (dq_p/dq_i)^T g_p are directional
+    derivatives of the closed-form loop closure (two JVPs and one VJP instead of its (8, 2 + ne)
+    Jacobian and the (N, N) x (N, 2 + ne) products); about 0.6x the cost of ``reduced``. The
+    second-order remainder (``linearized.remainder``) evaluates it; its terms one by one are
+    ``residual_term``."""
+    lay, q, qd, qdd, project = _moving_state(robot, qa, qe, qad, qed, qadd, qedd)
     mq, mdot_qd, dtdq = _mass_terms(robot, q, qd)
     dv = jax.grad(lambda qq: potential(robot, qq))(q)
     gen = mq @ qdd + mdot_qd - dtdq + dv + damping_forces(robot, qd)
-    return _part(gen, np.r_[lay.a, lay.e]) + project(_part(gen, lay.p))[0]
+    return _projected(lay, gen, project)
+
+
+RESIDUAL_TERMS = ("potential", "inertia", "motion")
+
+
+def residual_term(robot: Robot, qa, qe, term: str, qad=None, qed=None, qadd=None) -> jax.Array:
+    """One term (2 + ne,) of ``residual`` [N m; N], with q_e'' = 0; ``term`` (static):
+
+    - ``"potential"``: W^T dV/dq, the residual at rest (q' = q'' = 0; the damping is then zero);
+    - ``"inertia"``: W^T M(q) q'' with the motors accelerating at q_a'' = ``qadd`` from rest (q' = 0,
+      so q_p'' = W_p q_i''): the residual's increase from rest that is linear in q_a'';
+    - ``"motion"``: W^T (M(q) q'' + M' q' - dT/dq) at the velocities (``qad``, ``qed``) and q_a'' =
+      ``qadd``: everything but the potential and the damping.
+
+    So residual = potential + motion + damping forces, and at q' = 0 the motion term is the inertia
+    term. Evaluating a term alone skips the others' arithmetic, and their derivatives: the
+    linearization coefficients (``linearized.pose_coeffs``) take each one's Jacobian by q_e where a
+    difference of whole residuals' would cost about three times as much (and lose the small
+    s'' and s'^2 stiffness terms to round-off against the large elastic stiffness)."""
+    if term == "motion":
+        lay, q, qd, qdd, project = _moving_state(robot, qa, qe, qad, qed, qadd, jnp.zeros_like(qe))
+        mq, mdot_qd, dtdq = _mass_terms(robot, q, qd)
+        return _projected(lay, mq @ qdd + mdot_qd - dtdq, project)
+    if term not in RESIDUAL_TERMS:
+        raise ValueError(f"term must be one of {RESIDUAL_TERMS}, got {term!r}")
+    lay = layout(robot)
+    qi = jnp.concatenate([qa, qe])
+    qp, project = jax.vjp(_passive_of(robot), qi)
+    q = _assemble(lay, qa, qe, qp)
+    if term == "potential":
+        return _projected(lay, jax.grad(lambda qq: potential(robot, qq))(q), project)
+    qpdd = jax.jvp(_passive_of(robot), (qi,), (jnp.concatenate([qadd, jnp.zeros_like(qe)]),))[1]
+    return _projected(lay, mass_matrix(robot, q) @ _assemble(lay, qadd, jnp.zeros_like(qe), qpdd), project)
+
+
+def damping_matrix(robot: Robot) -> jax.Array:
+    """D (ne, ne): the Rayleigh damping forces on the elastic coordinates are D q_e' (``damping_forces``;
+    they do not depend on the pose, and act on no other coordinate)."""
+    lay = layout(robot)
+    force = lambda qed: _part(damping_forces(robot, _assemble(lay, jnp.zeros(2), qed, jnp.zeros(8))), lay.e)
+    return jax.jacfwd(force)(jnp.zeros(lay.ne))
 
 
 def direct_dynamics(robot: Robot, qa, qe, qad, qed, tau):

@@ -126,6 +126,50 @@ def test_matrix_free_residual_equals_reduced_equations(robot6, pose, richer):
     assert float(jnp.max(jnp.abs(want))) > 1e-3 * float(jnp.max(terms))   # not a sum of cancelling terms only
 
 
+@jax.jit
+def _terms_and_residual(robot, pose, qe, qad, qed, qadd):
+    zero = jnp.zeros_like(qe)
+    return (mdl.residual_term(robot, pose, qe, "potential"),
+            mdl.residual_term(robot, pose, qe, "inertia", qadd=qadd),
+            mdl.residual_term(robot, pose, qe, "motion", qad, qed, qadd),
+            mdl.residual_term(robot, pose, qe, "motion", jnp.zeros(2), zero, qadd),
+            mdl.residual(robot, pose, qe, qad, qed, qadd, zero),
+            mdl.residual(robot, pose, qe, jnp.zeros(2), zero, qadd, zero),
+            mdl.residual(robot, pose, qe, jnp.zeros(2), zero, jnp.zeros(2), zero),
+            mdl.damping_forces(robot, mdl.reduced(robot, pose, qe, qad, qed).qd), mdl.damping_matrix(robot))
+
+
+@pytest.mark.parametrize("richer", [False, True])
+def test_residual_terms_add_up_to_the_residual(robot6, pose, richer):
+    """The residual's terms (``residual_term``, from which the linearization coefficients are taken)
+    against the whole residual at a deflected, moving state with damping on: at rest it is the
+    potential term; accelerating from rest, potential + inertia; moving, potential + motion + the
+    damping forces D q_e'; the motion term at zero velocity is the inertia term. Tolerance 1e-12 of
+    the largest term (sums in another order); a term missing or 5 % off is far outside it."""
+    robot = mdl.richer(robot6) if richer else robot6
+    robot = robot.replace(damping=(2.0, 3e-5))
+    ne = mdl.layout(robot).ne
+    rng = np.random.default_rng(5)
+    qe, qed = jnp.asarray(rng.normal(scale=1e-5, size=ne)), jnp.asarray(rng.normal(scale=1e-2, size=ne))
+    qad, qadd = jnp.array([1.5, -2.0]), jnp.array([30.0, 12.0])
+    pot, inertia, motion, motion_at_rest, full, accelerating, rest, damping, d = (
+        np.asarray(v) for v in _terms_and_residual(robot, pose, qe, qad, qed, qadd))
+    lay = mdl.layout(robot)
+    damping_i = np.concatenate([damping[lay.a], damping[lay.e]])
+    assert np.all(damping[lay.a] == 0) and np.all(damping[lay.p] == 0)          # on the elastic coordinates only
+    np.testing.assert_allclose(damping[lay.e], d @ np.asarray(qed), rtol=1e-13)   # D q_e'
+    scale = max(np.abs(v).max() for v in (pot, inertia, motion, damping_i))
+    tol = dict(rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(rest, pot, **tol)
+    np.testing.assert_allclose(accelerating, pot + inertia, **tol)
+    np.testing.assert_allclose(full, pot + motion + damping_i, **tol)
+    np.testing.assert_allclose(motion_at_rest, inertia, **tol)
+    for v in (inertia, motion - inertia, damping_i):        # each term matters at this state
+        assert np.abs(v).max() > 1e-6 * scale
+    with pytest.raises(ValueError, match="term must be one of"):
+        mdl.residual_term(robot, pose, qe, "gravity")
+
+
 def test_inverse_then_direct_dynamics_roundtrip(robot6, pose):
     rng = np.random.default_rng(3)
     # elastic state of the size met along the paper's trajectories (tip deflections ~1e-5..1e-6 m)
