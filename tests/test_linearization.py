@@ -1,8 +1,9 @@
 """The linearization tables and their use in the rollout, term by term, against the full model.
 
-``linearized.pose_coeffs`` recovers the coefficients of the linearized equations from three probes
-of the model in (s', s''); the rollout (``simulate``) evaluates them and propagates the frozen system
-exactly over each step. Here every piece is checked against an independent computation:
+``linearized.pose_coeffs`` takes the coefficients of the linearized equations from the model's
+residual term by term (``model.residual_term``: at rest, per unit s'', per unit s'^2); the rollout
+(``simulate``) evaluates them and propagates the frozen system exactly over each step. Here every
+piece is checked against an independent computation:
 
 - at arbitrary path speed and acceleration, the linear model built from the coefficients
   (``linearized.evaluate``) equals the full model's equations and their Jacobians in (q_e, q_e',
@@ -63,10 +64,10 @@ def _end_effector_maps(robot, qa, qa1, qa2):
 def test_coefficients_are_the_full_models_linearization_at_any_speed(setup, node):
     """At table nodes on the first line, first blend, traverse and second blend, for a path speed
     and acceleration unlike the probes (s' = 2.3 m/s, s'' = -17 m/s^2), every term of the linear model
-    equals the full model's. Tolerance: 1e-9 of each matrix's largest entry (the s'' and s'^2
-    coefficients are differences of Jacobians holding the ~1e9 N/m axial stiffness: round-off ~1e-7
-    N/m, while a 5 % error in the smallest of them, the centrifugal stiffness K2 s'^2 ~ 1e2..1e3 N/m,
-    is ~10 N/m)."""
+    equals the full model's. Tolerance: 1e-9 of each matrix's largest entry (the reference's
+    Jacobian holds the ~5e9 N/m axial stiffness beside the s'' and s'^2 terms: round-off ~1e-6 N/m,
+    while a 5 % error in the smallest of them, the centrifugal stiffness K2 s'^2 ~ 1e2..1e3 N/m, is
+    ~10 N/m)."""
     robot, path, tables = setup
     c = jax.tree_util.tree_map(lambda a: a[node], tables.values)
     ds, dds = 2.3, -17.0
