@@ -30,6 +30,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.custom_derivatives import SymbolicZero
 
 from jaxflex import model as mdl
 from jaxflex import trees
@@ -383,8 +384,37 @@ def interpolate(tables: Tables, s) -> Coeffs:
     i0 = jnp.clip(jnp.floor(u).astype(int) - 1, 0, n - 4)
     t = u - i0.astype(float)
     w = cubic_weights(t)
-    idx = offsets[seg] + i0 + jnp.arange(4)
-    return trees.map_packed(lambda v: jnp.tensordot(w, v[idx], axes=1), tables.values, lead=1)
+    return trees.map_packed(lambda v: _window_sum(v, offsets[seg] + i0, w), tables.values, lead=1)
+
+
+@jax.custom_jvp
+def _window_sum(v, start, w):
+    """sum_k w_k v[start + k] (F,): the cubic interpolant of the rows v (K, F) with weights w (4,)
+    on the nodes start .. start + 3 (``start`` an integer).
+
+    The value is a gather. Its derivative is a custom JVP, because the gather's transpose (reverse
+    mode, every design gradient) is a scatter-add that XLA:CPU runs as a loop over the elements:
+    15 ms for the 4417 nodes of a rollout on the default grid. The tangent in v goes through the
+    weights as a dense row of K instead, whose transpose is a matrix product: 7.5 ms, with the
+    tangent in w (the arc length's) the same as before."""
+    return jnp.tensordot(w, v[start + jnp.arange(4)], axes=1)
+
+
+def _window_sum_jvp(primals, tangents):
+    v, start, w = primals
+    dv, _, dw = tangents
+    out = _window_sum(v, start, w)
+    tangent = jnp.zeros_like(out)
+    if not isinstance(dv, SymbolicZero):         # tables that do not depend on the inputs: no product
+        cols = jnp.arange(v.shape[0])
+        row = sum(jnp.where(cols == start + k, w[k], 0.0) for k in range(4))
+        tangent = tangent + row @ dv
+    if not isinstance(dw, SymbolicZero):
+        tangent = tangent + jnp.tensordot(dw, v[start + jnp.arange(4)], axes=1)
+    return out, tangent
+
+
+_window_sum.defjvp(_window_sum_jvp, symbolic_zeros=True)
 
 
 def evaluate(c: Coeffs, ds, dds):
