@@ -506,12 +506,16 @@ def residual_term(robot: Robot, qa, qe, term: str, qad=None, qed=None, qadd=None
     linearization coefficients (``linearized.pose_coeffs``) take each one's Jacobian by q_e where a
     difference of whole residuals' would cost about three times as much (and lose the small
     s'' and s'^2 stiffness terms to round-off against the large elastic stiffness)."""
+    if term not in RESIDUAL_TERMS:
+        raise ValueError(f"term must be one of {RESIDUAL_TERMS}, got {term!r}")
+    needs = {"potential": (), "inertia": ("qadd",), "motion": ("qad", "qed", "qadd")}[term]
+    missing = [name for name, v in zip(("qad", "qed", "qadd"), (qad, qed, qadd)) if name in needs and v is None]
+    if missing:
+        raise ValueError(f"the {term} term needs {', '.join(missing)}")
     if term == "motion":
         lay, q, qd, qdd, project = _moving_state(robot, qa, qe, qad, qed, qadd, jnp.zeros_like(qe))
         mq, mdot_qd, dtdq = _mass_terms(robot, q, qd)
         return _projected(lay, mq @ qdd + mdot_qd - dtdq, project)
-    if term not in RESIDUAL_TERMS:
-        raise ValueError(f"term must be one of {RESIDUAL_TERMS}, got {term!r}")
     lay = layout(robot)
     qi = jnp.concatenate([qa, qe])
     qp, project = jax.vjp(_passive_of(robot), qi)

@@ -168,6 +168,8 @@ def test_residual_terms_add_up_to_the_residual(robot6, pose, richer):
         assert np.abs(v).max() > 1e-6 * scale
     with pytest.raises(ValueError, match="term must be one of"):
         mdl.residual_term(robot, pose, qe, "gravity")
+    with pytest.raises(ValueError, match="the motion term needs qed"):
+        mdl.residual_term(robot, pose, qe, "motion", qad, qadd=qadd)
 
 
 def test_inverse_then_direct_dynamics_roundtrip(robot6, pose):
