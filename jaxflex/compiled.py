@@ -84,6 +84,7 @@ def release_compiled() -> None:
     recompile, or load from the persistent compilation cache when it is enabled (the CLI enables it)."""
     with _AHEAD_LOCK:
         _AHEAD.clear()
+        _AHEAD_OUT.clear()
     jax.clear_caches()
     gc.collect()
     heap.trim()
@@ -106,7 +107,10 @@ def release_if_crowded(share: float = MAPPING_SHARE) -> bool:
 
 _AHEAD: dict = {}                   # signature -> Future of a compiled program (compile_ahead)
 _AHEAD_LOCK = threading.Lock()
-_AHEAD_POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxflex-compile")
+_AHEAD_OUT: dict = {}               # signature -> the program's output shapes (lower_ahead)
+# two compilations at a time: XLA compiles without the interpreter lock, so a chain of programs
+# lowered one after the other (``lower_ahead``) compiles on both cores
+_AHEAD_POOL = ThreadPoolExecutor(max_workers=2, thread_name_prefix="jaxflex-compile")
 
 
 _DTYPE_STR: dict = {}
@@ -143,6 +147,26 @@ def compile_ahead(fn, args: tuple, static: dict | None = None) -> Future:
         if key not in _AHEAD:
             _AHEAD[key] = _AHEAD_POOL.submit(lambda: fn.lower(*args, **static).compile())
         return _AHEAD[key]
+
+
+def lower_ahead(fn, args: tuple, static: dict | None = None):
+    """Lower the jitted ``fn`` for ``args`` and ``static`` (as ``compile_ahead``) in this thread and
+    compile it in the background; returns the program's output shapes (a pytree of
+    ``jax.ShapeDtypeStruct``) at once and its Future. A chain of programs, each lowered from the
+    output shapes of the one before, thus compiles two programs at a time instead of one after the
+    other (the design gradient's eight, ``optimize.staged.compile_ahead``)."""
+    static = dict(static or {})
+    key = _signature(fn, args, static)
+    with _AHEAD_LOCK:
+        fut, out = _AHEAD.get(key), _AHEAD_OUT.get(key)
+    if fut is not None:
+        return (out if out is not None else fut.result().out_info), fut
+    lowered = fn.lower(*args, **static)
+    with _AHEAD_LOCK:
+        if key not in _AHEAD:
+            _AHEAD[key] = _AHEAD_POOL.submit(lowered.compile)
+            _AHEAD_OUT[key] = lowered.out_info
+        return lowered.out_info, _AHEAD[key]
 
 
 def call(fn, args: tuple, static: dict | None = None):

@@ -311,14 +311,15 @@ def compile_ahead(f, params, args, *, hot: bool = False) -> Future:
 
 
 def _compile_chain(p: _Programs, f, params, robot, cycle, workspace, tf, dwell, ref) -> list:
-    """Every stage compiled in the order ``value_and_grad`` runs them, each from the output shapes of
-    the ones before (the stored forward passes' structure included)."""
-    done = []
+    """Every stage lowered in the order ``value_and_grad`` runs them, each from the output shapes of
+    the ones before (the stored forward passes' structure included), and compiled two at a time
+    (``compiled.lower_ahead``); returns the compiled programs once all are done."""
+    pending = []
 
     def ahead(fn, args, static=None):
-        program = compiled.compile_ahead(fn, args, static).result()
-        done.append(program)
-        return program.out_info
+        out, fut = compiled.lower_ahead(fn, args, static)
+        pending.append(fut)
+        return out
 
     (tables, samples), v_path = ahead(p.path, (params, robot, cycle, workspace, tf),
                                       {"grid": f.grid, "blend": f.blend, "order": f.order})
@@ -329,4 +330,4 @@ def _compile_chain(p: _Programs, f, params, robot, cycle, workspace, tf, dwell, 
     (c_sites,) = ahead(p.back, (v_remainder, c_r))
     c_tables1, c_samples1 = ahead(p.back, (v_first, (c_prep, c_sites)))
     ahead(p.back_sum, (v_path, (c_tables, c_samples), (c_tables1, c_samples1)))
-    return done
+    return [fut.result() for fut in pending]

@@ -98,6 +98,28 @@ def test_compile_ahead_gives_the_jitted_result_and_release_forgets_it():
     assert not compiled._AHEAD
 
 
+def test_lower_ahead_gives_the_output_shapes_at_once_and_the_jitted_program():
+    """``lower_ahead`` returns the program's output shapes before it is compiled (what a chain of
+    programs lowers the next one from) and registers the compilation as ``compile_ahead`` does:
+    ``call`` runs it with the jitted function's result, and the same signature is lowered once."""
+    from jaxflex import compiled
+
+    f = jax.jit(lambda x, y: (jnp.sin(x) @ y, jnp.sum(x, axis=0)))
+    x, y = jnp.linspace(0.0, 1.0, 12).reshape(3, 4), jnp.linspace(-1.0, 2.0, 8).reshape(4, 2)
+    shapes = (jax.ShapeDtypeStruct((3, 4), x.dtype), jax.ShapeDtypeStruct((4, 2), y.dtype))
+    out_info, fut = compiled.lower_ahead(f, shapes)
+    assert [(o.shape, o.dtype) for o in out_info] == [((3, 2), x.dtype), ((4,), x.dtype)]
+    assert compiled.lower_ahead(f, (x, y))[1] is fut                          # same signature: one program
+    assert compiled.compile_ahead(f, (x, y)) is fut
+    before = f._cache_size()
+    out = compiled.call(f, (x, y))
+    assert f._cache_size() == before                                          # the ahead program ran
+    for a, b in zip(out, f(x, y)):
+        assert jnp.array_equal(a, b)
+    release_compiled()
+    assert not compiled._AHEAD and not compiled._AHEAD_OUT
+
+
 @pytest.mark.skipif(mapping_count() is None or mapping_limit() is None, reason="needs /proc (Linux)")
 def test_release_if_crowded_releases_only_above_its_share_of_the_mapping_limit():
     """``release_if_crowded`` keeps the compiled programs while the process holds less than its share
