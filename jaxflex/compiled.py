@@ -149,7 +149,7 @@ def compile_ahead(fn, args: tuple, static: dict | None = None) -> Future:
         return _AHEAD[key]
 
 
-def lower_ahead(fn, args: tuple, static: dict | None = None):
+def lower_ahead(fn, args: tuple, static: dict | None = None) -> tuple[object, Future]:
     """Lower the jitted ``fn`` for ``args`` and ``static`` (as ``compile_ahead``) in this thread and
     compile it in the background; returns the program's output shapes (a pytree of
     ``jax.ShapeDtypeStruct``) at once and its Future. A chain of programs, each lowered from the
