@@ -95,6 +95,9 @@ MUTATIONS = [
      "mq @ qdd + mdot_qd - 1.05 * dtdq, project)", "dT/dq +5 % in the residual's motion term (the tables')"),
     ("l15_inertia_term", "jaxflex/model.py", "mass_matrix(robot, q) @ _assemble(lay, qadd",
      "1.05 * mass_matrix(robot, q) @ _assemble(lay, qadd", "M(q) q'' +5 % in the residual's inertia term"),
+    ("l16_interpolation_tangent", "jaxflex/linearized.py", "tangent = tangent + row @ dv",
+     "tangent = tangent + 1.05 * (row @ dv)", "the tables' interpolation tangent (reverse mode) +5 %",
+     [GRADIENT_TEST]),
     ("l12_remainder", "jaxflex/linearized.py", "return (r1 - r0) - (8.0", "return 1.05 * (r1 - r0) - 1.05 * (8.0",
      "second-order remainder +5 %"),
     # ---- the rollout
