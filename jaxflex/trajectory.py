@@ -15,6 +15,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxflex.blends import BLENDS
+from jaxflex.compiled import BUILD
 from jaxflex.path import Cycle, Path, check_path_args, make_path, path_frame
 from jaxflex.profiles import PROFILES, Profile, make_profile, profile_eval, time_scaled
 from jaxflex.robot import Robot, check_cycle_reachable, joint_motion
@@ -111,7 +112,7 @@ def _combinations(robot, cycle, tf, t, d, e, n, blends, profiles):
     return jax.tree_util.tree_map(lambda *a: jnp.concatenate(a), *out)
 
 
-_combinations_jit = jax.jit(_combinations, static_argnames=("blends", "profiles"))
+_combinations_jit = jax.jit(_combinations, static_argnames=("blends", "profiles"), compiler_options=BUILD)
 
 
 def sample_combinations(robot: Robot, cycle: Cycle, tf, t, *, d=0.025, e=None, n=3.0,
