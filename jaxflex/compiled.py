@@ -46,26 +46,28 @@ _CONFIG = ("jax_enable_x64", "jax_compilation_cache_dir", "jax_persistent_cache_
 # - XLA's classic elemental emitters instead of the fusion emitters compile the gradient sooner.
 HOT_LOOP = {"xla_backend_optimization_level": 1, "xla_cpu_use_fusion_emitters": False}
 
+_LEVEL_IN_FLAGS = "xla_backend_optimization_level" in os.environ.get("XLA_FLAGS", "")
+
 # XLA options of the other large programs, compiled once per process and run from a few to hundreds
 # of times: the coefficient program of every table build (``linearized.coeffs_many``), the table
 # poses, the locked modes at a point, the paper combinations' kinematics (``trajectory``), and the
-# full model's stepping program and motor motion (``jaxflex.reference``). The hot programs' options, unless XLA_FLAGS choose an optimization level
-# themselves (the test suite's level 0, for its run-once programs). Measured cold on 2 cores: the
-# coefficient program (252 poses per chunk) compiles in 10.5 s instead of 17.3 s at the default
-# level 3 and runs as fast (127 against 121 ms per chunk; at level 0: 7.7 s and 2.2x slower), the
-# locked modes at a point in 4.0 s instead of 6.0 s. (The coefficient program measured then took
-# three probes of the whole residual; its terms one by one, ``model.residual_term``, compile in
-# about 7 s at these options and run a chunk in 32 ms.) The full model's stepping program: 17-19 s
-# instead of 24-36 s on 2026-11-28 (a slow day), and as fast per chunk; the kinematics study
-# (``experiments.kinematics.compute``, six such programs) 20.3 s instead of 27.3 s.
-BUILD = None if "xla_backend_optimization_level" in os.environ.get("XLA_FLAGS", "") else HOT_LOOP
+# full model's stepping program and motor motion (``jaxflex.reference``). The hot programs'
+# options, unless XLA_FLAGS choose an optimization level themselves (the test suite's level 0, for
+# its run-once programs). Measured cold on 2 cores: the coefficient program (252 poses per chunk)
+# compiles in 10.5 s instead of 17.3 s at the default level 3 and runs as fast (127 against 121 ms
+# per chunk; at level 0: 7.7 s and 2.2x slower), the locked modes at a point in 4.0 s instead of
+# 6.0 s. (The coefficient program measured then took three probes of the whole residual; its terms
+# one by one, ``model.residual_term``, compile in about 7 s at these options and run a chunk in
+# 32 ms.) On 2026-11-28 (a slow host, three runs each): the full model's stepping program in 17-26 s
+# against 21-39 s, as fast per chunk; the kinematics study (``experiments.kinematics.compute``, six
+# combination programs) 20.3 s against 27.3 s.
+BUILD = None if _LEVEL_IN_FLAGS else HOT_LOOP
 
 # XLA options of large programs run once or twice per call: the full model's start and its outputs
 # at the ends (``jaxflex.reference``). LLVM level 0, unless XLA_FLAGS choose a level themselves.
-# Measured cold on 2 cores on 2026-11-28 (a slow day): the full model's start compiles in 9-11 s
-# instead of 19-32 s, its outputs in 11-12 s instead of 23-25 s; their run time is milliseconds.
-ONCE = None if "xla_backend_optimization_level" in os.environ.get("XLA_FLAGS", "") else \
-    {"xla_backend_optimization_level": 0, "xla_cpu_use_fusion_emitters": False}
+# Measured cold on 2 cores on 2026-11-28 (a slow host, three runs each): the start compiles in
+# 8-14 s against 19-32 s, the outputs in 11-18 s against 24-37 s; each runs in milliseconds.
+ONCE = None if _LEVEL_IN_FLAGS else {"xla_backend_optimization_level": 0, "xla_cpu_use_fusion_emitters": False}
 
 
 def mapping_count() -> int | None:

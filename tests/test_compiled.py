@@ -223,3 +223,22 @@ def test_build_programs_take_the_hot_options_unless_xla_flags_set_a_level(flags,
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert out.stdout.strip() == expected
+
+
+@pytest.mark.parametrize("flags, expected", [
+    ("", "level 0"),
+    ("--xla_cpu_multi_thread_eigen=false", "level 0"),
+    ("--xla_backend_optimization_level=2", "none"),
+])
+def test_run_once_programs_compile_at_level_0_unless_xla_flags_set_a_level(flags, expected):
+    """``compiled.ONCE`` (the full model's start and end programs, run once or twice per call):
+    LLVM level 0 and the classic emitters, unless XLA_FLAGS choose an optimization level, read
+    once at import, in a fresh process with the given XLA_FLAGS."""
+    import subprocess
+    import sys
+    env = dict(os.environ, XLA_FLAGS=flags)
+    code = ("from jaxflex import compiled; o = compiled.ONCE; print('none' if o is None else 'level 0' if o == "
+            "{'xla_backend_optimization_level': 0, 'xla_cpu_use_fusion_emitters': False} else 'other')")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == expected
