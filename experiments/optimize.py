@@ -325,16 +325,49 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, out=None, verify=False, 
     bar.close("done")
     if verify:
         from jaxflex.compiled import release_compiled
-        from jaxflex.profiles import make_profile
 
         release_compiled()          # the study's programs are done with (memory mappings, jaxflex.compiled)
-        best = f"{study.blend}/{study.best_paper} (best paper)"
-        trajectories = {best: (study.paths["paper"], make_profile(study.best_paper)),
-                        "optimized": (study.paths["optimized"], study.candidates["optimized"].law)}
-        rec["verification"] = {f"{m:g} kg": verify_trajectories(robot, cycle, trajectories, m, tf) for m in payloads}
+        rec["verification"] = verification(rec, preset)
     if out:
         write_json(out / "optimize.json", rec)
     return rec
+
+
+def trajectories_of(rec: dict, cycle) -> dict:
+    """The best paper combination's trajectory and the optimized one of a study record (``compute``),
+    rebuilt from the record's numbers (the same arrays as the study's: JSON keeps float64 exactly):
+    name -> (Path, Profile)."""
+    from jaxflex.designs import design, design_path
+    from jaxflex.path import make_path
+    from jaxflex.profiles import make_profile, shaped
+
+    law, p = rec["design"], rec["design"]["path"]
+    paper = make_path(cycle, rec["blend"], 0.025)
+    if p["free"]:
+        (c1, c2) = p["corners"]
+        x = design(c1["d_m"], c1["e_m"], c1["n"], np.asarray(law["coef"], dtype=float), d2=c2["d_m"], e2=c2["e_m"],
+                   n2=c2["n"])
+        path = design_path(cycle, x, p["blend"])
+    else:
+        path = paper
+    optimized = shaped(jnp.asarray(law["coef"], dtype=jnp.float64), law["order"], name="optimized")
+    return {f"{rec['blend']}/{rec['best_paper']} (best paper)": (paper, make_profile(rec["best_paper"])),
+            "optimized": (path, optimized)}
+
+
+def verification(rec: dict, preset: str = "default") -> dict:
+    """The study's independent check (``jaxflex.optimize.study.verify``) of a study record: the best
+    paper combination and the optimized trajectory re-simulated at a quarter step and with the full
+    nonlinear model, per payload: "<payload> kg" -> trajectory -> method -> dwell residual [mm]."""
+    robot, cycle = robot_preset(preset), cycle_preset(preset)
+    trajectories = trajectories_of(rec, cycle)
+    return {f"{m:g} kg": verify_trajectories(robot, cycle, trajectories, m, rec["tf"]) for m in rec["payloads"]}
+
+
+def verifications(records: list, preset: str = "default") -> list:
+    """``verification`` of several study records in one process: the full model's and the fast
+    model's programs compile (or load from the compilation cache) once for all of them."""
+    return [verification(rec, preset) for rec in records]
 
 
 def config_record(config: StudyConfig) -> dict:

@@ -121,7 +121,7 @@ def cycle_time_study(problem: Problem, tfs: Sequence[float] = (0.43, 0.40, 0.37,
     i_nominal = int(nominal_indices(perturbed, [payload])[0])      # the nominal model is one of them
     paper_perturbed = LawEvaluator(perturbed, make_path(cycle, blend, 0.025), tf_ref, dwell, grid, chunk=chunk)
     target_perturbed = float(np.max(paper_perturbed(make_profile(law))["dwell_residual_mm"]))
-    workspaces = _workspaces(models, cycle, progress)           # once for every tf
+    workspaces = _workspaces(models, cycle, progress, config.memo)      # once for every tf
     opt_res, opt_worst, opt_tau, designs = [], [], [], []
     for tf in tfs:
         scales = reference_scales(ref_eval, make_profile(law), bounds, tf=float(tf), weights=training_weights(train),

@@ -37,8 +37,11 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import hashlib
 import os
+import pathlib
 import time
+import zipfile
 from typing import NamedTuple, Sequence
 
 import jax
@@ -456,11 +459,68 @@ def _training_references(models: ModelSet, nominal, sweep: PaperSweep, blend: st
         return bounds, train(make_profile(law)), train
 
 
-def _workspaces(models: ModelSet, cycle: Cycle, progress: bool) -> Workspace:
-    """The training models' workspace tables (``jaxflex.workspace``), with progress on stderr."""
+def _workspaces(models: ModelSet, cycle: Cycle, progress: bool, memo=None) -> Workspace:
+    """The training models' workspace tables (``jaxflex.workspace``), with progress on stderr; with a
+    ``memo`` directory each model's tables are kept there and loaded by later studies
+    (``remembered_workspaces``)."""
     bar = Progress(f"workspace tables of {len(models.ids)} model(s)", enabled=progress)
-    with bar.waiting("building (the blends' design space around both corners)", key="workspace tables"):
-        return jax.block_until_ready(build_workspace(models.robots, cycle))
+    if memo is None:
+        with bar.waiting("building (the blends' design space around both corners)", key="workspace tables"):
+            return jax.block_until_ready(build_workspace(models.robots, cycle))
+    with bar.waiting("building or loading (the blends' design space around both corners)",
+                     key="workspace tables (memo)"):
+        return remembered_workspaces(models.robots, cycle, memo)
+
+
+WORKSPACE_MEMO = "workspaces"       # the subdirectory of a study memo that holds the models' workspaces
+
+
+def remembered_workspaces(robots: Robot, cycle: Cycle, memo) -> Workspace:
+    """``build_workspace(robots, cycle)`` for a stack of K robots, each model's tables kept in
+    ``memo``/workspaces as a file named by a digest of the model, the cycle and the code
+    (``loop.fingerprint``'s code digest). Models whose file is there are loaded, the others built
+    (as one stack) and written: the studies of ``jaxflex reproduce`` train on the same models (the
+    6 kg box in the 6 kg, both-payload and cycle-time studies), each in a process of its own, and
+    building one model's tables takes a few seconds of the coefficient program. Each model's tables
+    are those of a stacked build (the same program per robot and chunk of poses), so the result is
+    the same, bit for bit, whichever models were loaded. About 8 MB per model on the default cycle."""
+    from .loop import _code_digest
+
+    folder = pathlib.Path(memo) / WORKSPACE_MEMO
+    singles = [jax.tree_util.tree_map(lambda a: a[k], robots) for k in range(np.shape(robots.payload)[0])]
+    code = _code_digest().encode()
+    files = [folder / f"{hashlib.sha1(code + trees.content_key(r, cycle)).hexdigest()}.npz" for r in singles]
+    shapes = workspace_shapes(singles[0], cycle)
+    tables = [_load_workspace(f, shapes) for f in files]
+    missing = [k for k, t in enumerate(tables) if t is None]
+    if missing:
+        built = build_workspace(trees.stack([singles[k] for k in missing]), cycle)
+        folder.mkdir(parents=True, exist_ok=True)
+        for j, k in enumerate(missing):
+            tables[k] = jax.tree_util.tree_map(lambda a: np.asarray(a[j]), built)
+            _save_workspace(files[k], tables[k])
+    return jax.block_until_ready(trees.stack(tables))
+
+
+def _save_workspace(file: pathlib.Path, ws: Workspace) -> None:
+    tmp = file.with_name(f".{file.name}.{os.getpid()}.tmp")
+    with open(tmp, "wb") as fh:
+        np.savez(fh, *[np.asarray(a) for a in jax.tree_util.tree_leaves(ws)])
+    os.replace(tmp, file)                   # atomic: a reader sees the whole file or none
+
+
+def _load_workspace(file: pathlib.Path, shapes: Workspace) -> Workspace | None:
+    """The workspace in ``file`` if it is there and has the structure of ``shapes``, else None."""
+    leaves, treedef = jax.tree_util.tree_flatten(shapes)
+    try:
+        with np.load(file) as z:
+            arrays = [z[f"arr_{i}"] for i in range(len(z.files))]
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):     # missing or damaged
+        return None
+    if len(arrays) != len(leaves) or any(a.shape != tuple(s.shape) or a.dtype != s.dtype
+                                         for a, s in zip(arrays, leaves)):
+        return None
+    return jax.tree_util.tree_unflatten(treedef, arrays)
 
 
 def _check_problem(name: str, problem, config) -> None:
@@ -500,7 +560,7 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
                                        workspace_shapes(models.robots, cycle), power=c.robust_power,
                                        order=c.law_order, blend=c.blend)
             compile_gradient_ahead(encode(cycle, x0), args, f=f, hot=is_hot(steps))
-        workspaces = _workspaces(models, cycle, progress)
+        workspaces = _workspaces(models, cycle, progress, c.memo)
     nominal = nominal_indices(models, payloads)
     sweep = paper_sweep(subset(models, nominal), cycle, tf, dwell, grid, progress=progress)
     paper = sweep.metrics                                                       # (B, P, C)

@@ -422,3 +422,78 @@ def test_power_mean_objective_tends_to_the_worst_model_and_scales_are_absolute()
     assert [i.payload for i in ms.ids] == [0.1, 0.1, 6.0, 6.0] and [i.stiffness_scale for i in ms.ids] == [0.95, 1.0] * 2
     np.testing.assert_allclose(np.asarray(s.energy), [2.0, 2.0, 4.0, 4.0])
     np.testing.assert_allclose(np.asarray(s.dwell_ms), np.array([0.2, 0.2, 0.4, 0.4]) ** 2 * 1e-6 / 2)
+
+
+def test_a_study_record_rebuilds_the_studys_trajectories_bit_for_bit(tmp_path):
+    """``jaxflex reproduce`` verifies the studies after them, in one process, from their JSON records
+    (``experiments.optimize.trajectories_of``): the optimized path and law and the best paper path
+    rebuilt from the record (``design_record``, through a JSON round trip) must be the study's own
+    arrays, bit for bit, or the verification would check another trajectory. The workspace memo of
+    the studies (``study.remembered_workspaces``) is checked by the same principle in
+    ``test_workspace.py``."""
+    import json
+    from types import SimpleNamespace
+
+    from jaxflex.designs import Design, design_path
+    from jaxflex.experiments.optimize import design_record, trajectories_of
+    from jaxflex.profiles import profile_eval, shaped
+
+    cycle = cycle_preset()
+    x = Design(np.array([0.0215, 0.0231]), np.array([0.0302, 0.0357]), np.array([3.21, 3.43]),
+               np.array([1.0, 1.17, 0.93, 1.0, 1.08]))
+    paths = {"paper": make_path(cycle, "lame", 0.025), "optimized": design_path(cycle, x, "smoothstep")}
+    law = shaped(jnp.asarray(x.coef), 3, name="optimized")
+    study = SimpleNamespace(design=x, coef=x.coef, blend="lame", paths=paths,
+                            candidates={"optimized": SimpleNamespace(law=law)})
+    rec = json.loads(json.dumps({"blend": "lame", "best_paper": "trap_1_4", "design": design_record(study)}))
+    (paper, _), (path, rebuilt) = trajectories_of(rec, cycle).values()
+    for a, b in ((paths["paper"], paper), (paths["optimized"], path)):
+        assert type(a) is type(b)
+        for u, v in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)):
+            np.testing.assert_array_equal(np.asarray(u), np.asarray(v))
+    eta = jnp.linspace(0.0, 1.0, 101)
+    for side in (1, -1):
+        for u, v in zip(profile_eval(law, eta, side), profile_eval(rebuilt, eta, side)):
+            np.testing.assert_array_equal(np.asarray(u), np.asarray(v))
+
+
+def test_remembered_workspaces_load_the_models_built_before_and_rebuild_the_others(tmp_path, monkeypatch):
+    """The studies' workspace memo (``study.remembered_workspaces``): a model whose tables a study
+    built before is loaded, the others are built (as one stack) and kept; the result is the stack
+    in the models' order, whichever were loaded; a damaged file is built again. The builder is
+    replaced by a cheap one whose tables encode the payload, so the test checks which model's
+    tables land where (that a stacked build gives each model the tables of a build alone, bit for
+    bit, is measured in the issue notes: the 18 models of both payloads against two stacks of 9)."""
+    from jaxflex.optimize import study
+    from jaxflex.workspace import workspace_shapes
+
+    robot, cycle = robot_preset("default"), cycle_preset()
+    built = []
+
+    def fake_build(robots, cyc):
+        payloads = np.atleast_1d(np.asarray(robots.payload, dtype=float))
+        built.append(payloads.tolist())
+        return jax.tree_util.tree_map(
+            lambda s: jnp.asarray(np.stack([m * (1.0 + np.arange(np.prod(s.shape[1:])).reshape(s.shape[1:]))
+                                            for m in payloads]).astype(s.dtype)),
+            workspace_shapes(robots, cyc))
+
+    monkeypatch.setattr(study, "build_workspace", fake_build)
+    stack = lambda ms: stack_robots([robot.replace(payload=m) for m in ms])
+    same = lambda a, b: all(np.array_equal(np.asarray(u), np.asarray(v))
+                            for u, v in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)))
+
+    first = study.remembered_workspaces(stack([6.0, 0.1]), cycle, tmp_path)
+    assert built == [[6.0, 0.1]] and same(first, fake_build(stack([6.0, 0.1]), cycle))
+    built.clear()
+    second = study.remembered_workspaces(stack([0.1, 2.0, 6.0]), cycle, tmp_path)
+    assert built == [[2.0]], "only the model not built before is built"
+    assert same(second, fake_build(stack([0.1, 2.0, 6.0]), cycle))
+    files = sorted((tmp_path / study.WORKSPACE_MEMO).glob("*.npz"))
+    assert len(files) == 3
+    files[0].write_bytes(files[0].read_bytes()[:len(files[0].read_bytes()) // 2])      # cut short
+    for f in files[1:]:
+        f.write_bytes(b"damaged")
+    built.clear()
+    third = study.remembered_workspaces(stack([2.0, 0.1, 6.0]), cycle, tmp_path)
+    assert built == [[2.0, 0.1, 6.0]] and same(third, fake_build(stack([2.0, 0.1, 6.0]), cycle))
