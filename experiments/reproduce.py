@@ -152,9 +152,12 @@ OPT_CASES = (((6.0,), 0.43, "box", 6), ((0.1,), 0.3, "box", 6), ((0.1, 6.0), 0.4
 
 def _optimization(out: Path, quick: bool, key: dict, vib: dict | None = None) -> dict:
     """The design optimization for both paper cases and one design robust over both payloads, then
-    the cycle-time study. Each study resumes: a finished one from its JSON, an interrupted
-    optimization from its checkpoint. All share one grid (the 0.43 s case's; the 0.3 s case gets a
-    finer step), so the single-payload studies and the cycle-time study compile their gradient once.
+    the cycle-time study, then the verification of the three designs (``optimize.verifications``:
+    the full model and a quarter step, one process for all). Each study resumes: a finished one
+    from its JSON, an interrupted optimization from its checkpoint. All share one grid (the 0.43 s
+    case's; the 0.3 s case gets a finer step), so the single-payload studies and the cycle-time
+    study compile their gradient once, and the training models' workspace tables (the later
+    studies load them from ``DIR/optimizations/workspaces``, removed at the end).
     ``vib``: the vibration study's results (``vibration.compute``), whose paper-model residuals the
     richer-model comparison reuses instead of simulating the 12 combinations again."""
     from jaxflex.optimize.study import WORKSPACE_MEMO, StudyConfig
