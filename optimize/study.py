@@ -497,8 +497,12 @@ def remembered_workspaces(robots: Robot, cycle: Cycle, memo) -> Workspace:
         built = build_workspace(trees.stack([singles[k] for k in missing]), cycle)
         folder.mkdir(parents=True, exist_ok=True)
         for j, k in enumerate(missing):
+            _save_workspace(files[k], jax.tree_util.tree_map(lambda a: a[j], built))
+        if len(missing) == len(tables):
+            return jax.block_until_ready(built)      # every model built here: the stack as built, no copy
+        for j, k in enumerate(missing):
             tables[k] = jax.tree_util.tree_map(lambda a: np.asarray(a[j]), built)
-            _save_workspace(files[k], tables[k])
+        del built
     return jax.block_until_ready(trees.stack(tables))
 
 
