@@ -215,14 +215,20 @@ def test_build_programs_take_the_hot_options_unless_xla_flags_set_a_level(flags,
     """``compiled.BUILD`` (the coefficient, table-pose and locked-mode programs): LLVM level 1 and the
     classic emitters, unless XLA_FLAGS choose an optimization level (the test suite's level 0), read
     once at import, in a fresh process with the given XLA_FLAGS."""
-    import subprocess
-    import sys
-    env = dict(os.environ, XLA_FLAGS=flags)
     code = ("from jaxflex import compiled; print('none' if compiled.BUILD is None else "
             "'hot' if compiled.BUILD == compiled.HOT_LOOP else 'other')")
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert _printed_with_xla_flags(flags, code) == expected
+
+
+def _printed_with_xla_flags(flags: str, code: str) -> str:
+    """What ``code`` prints in a fresh Python process with XLA_FLAGS=flags (``compiled`` reads them
+    once at import)."""
+    import subprocess
+    import sys
+    out = subprocess.run([sys.executable, "-c", code], env=dict(os.environ, XLA_FLAGS=flags), capture_output=True,
+                         text=True, timeout=120)
     assert out.returncode == 0, out.stderr
-    assert out.stdout.strip() == expected
+    return out.stdout.strip()
 
 
 @pytest.mark.parametrize("flags, expected", [
@@ -234,11 +240,6 @@ def test_run_once_programs_compile_at_level_0_unless_xla_flags_set_a_level(flags
     """``compiled.ONCE`` (the full model's start and end programs, run once or twice per call):
     LLVM level 0 and the classic emitters, unless XLA_FLAGS choose an optimization level, read
     once at import, in a fresh process with the given XLA_FLAGS."""
-    import subprocess
-    import sys
-    env = dict(os.environ, XLA_FLAGS=flags)
     code = ("from jaxflex import compiled; o = compiled.ONCE; print('none' if o is None else 'level 0' if o == "
             "{'xla_backend_optimization_level': 0, 'xla_cpu_use_fusion_emitters': False} else 'other')")
-    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
-    assert out.returncode == 0, out.stderr
-    assert out.stdout.strip() == expected
+    assert _printed_with_xla_flags(flags, code) == expected
