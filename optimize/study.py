@@ -53,7 +53,7 @@ from jaxflex import checks
 from jaxflex.blends import BLENDS, DESIGN_BLENDS
 from jaxflex.designs import Design, design, design_path
 from jaxflex.engine import LawEvaluator
-from jaxflex.linearized import path_tables
+from jaxflex.linearized import _robot_list, path_tables
 from jaxflex.model import richer
 from jaxflex.model_sets import ModelId, ModelSet, model_set, models_of, place_first_mode_hz
 from jaxflex.parallel import Beside
@@ -487,7 +487,7 @@ def remembered_workspaces(robots: Robot, cycle: Cycle, memo) -> Workspace:
     from .loop import _code_digest
 
     folder = pathlib.Path(memo) / WORKSPACE_MEMO
-    singles = [jax.tree_util.tree_map(lambda a: a[k], robots) for k in range(np.shape(robots.payload)[0])]
+    singles = _robot_list(robots)
     code = _code_digest().encode()
     files = [folder / f"{hashlib.sha1(code + trees.content_key(r, cycle)).hexdigest()}.npz" for r in singles]
     shapes = workspace_shapes(singles[0], cycle)
