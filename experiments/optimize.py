@@ -52,6 +52,11 @@ def write_trajectory_csv(path_out, rows: np.ndarray) -> None:
         np.savetxt(tmp, rows, delimiter=",", header="t,x,y,q1,q2", comments="", fmt="%.12g")
 
 
+def _corners(x) -> list:
+    """A design's blend parameters per corner (pick, place) as JSON: d, e [m] and the exponent n."""
+    return [{"d_m": float(x.d[i]), "e_m": float(x.e[i]), "n": float(x.n[i])} for i in range(2)]
+
+
 def design_record(study) -> dict:
     """The optimized trajectory: its path (blend family and per-corner parameters, or the best paper
     path with ``free_path=False``) and its law."""
@@ -59,9 +64,7 @@ def design_record(study) -> dict:
            "coef": np.asarray(study.coef).tolist()}
     if study.design is None:
         return {"path": {"blend": study.blend, "d": 0.025, "e": 0.025, "n": 3.0, "free": False}, **law}
-    x = study.design
-    corners = [{"d_m": float(x.d[i]), "e_m": float(x.e[i]), "n": float(x.n[i])} for i in range(2)]
-    return {"path": {"blend": study.paths["optimized"].kind, "corners": corners, "free": True,
+    return {"path": {"blend": study.paths["optimized"].kind, "corners": _corners(study.design), "free": True,
                      "length_m": float(study.paths["optimized"].length)}, **law}
 
 
@@ -388,14 +391,13 @@ def run(preset="default", payloads=(6.0,), tf=0.43, out=None, json_path=None, ve
 
 def cycle_time_record(st) -> dict:
     """JSON record of a ``CycleTimeStudy``."""
-    corners = lambda x: [{"d_m": float(x.d[i]), "e_m": float(x.e[i]), "n": float(x.n[i])} for i in range(2)]
     return {"payload": st.payload, "tf_ref": st.tf_ref, "train": st.train, "target_mm": st.target,
             "target_perturbed_worst_mm": st.target_perturbed, "torque_bound_nm": st.torque_bound,
             "tf_min": st.tf_min, "reduction": st.reduction, "tf_min_robust": st.tf_min_robust,
             "reduction_robust": st.reduction_robust, "wall_s": st.wall_s,
             "rows": [{"tf": float(t), "paper_best": pb, "paper_best_mm": float(pr), "optimized_mm": float(o),
                       "optimized_perturbed_worst_mm": float(w), "optimized_torque_nm": float(tq),
-                      "corners": corners(x), "coef": np.asarray(x.coef).tolist()}
+                      "corners": _corners(x), "coef": np.asarray(x.coef).tolist()}
                      for t, pb, pr, o, w, tq, x in zip(st.tfs, st.paper_best, st.paper_residual,
                                                        st.optimized_residual, st.optimized_perturbed_worst,
                                                        st.optimized_torque, st.designs)]}
