@@ -151,9 +151,14 @@ def pose_coeffs(robot: Robot, qa, qa1, qa2) -> Coeffs:
     zero_e, zero2 = jnp.zeros(ne), jnp.zeros(2)
 
     def term(name, qad, qadd):
-        """A term of the residual (``model.residual_term``) and its Jacobian by q_e, at q_e = 0."""
-        f = lambda qe: mdl.residual_term(robot, qa, qe, name, qad, zero_e, qadd)
-        return f(zero_e), jax.jacfwd(f)(zero_e)
+        """A term of the residual (``model.residual_term``) and its Jacobian by q_e, at q_e = 0, from
+        one trace of the term: the value is the Jacobian's primal (``jax.jacfwd``'s ``has_aux``),
+        not a second trace of the model."""
+        def value_twice(qe):
+            y = mdl.residual_term(robot, qa, qe, name, qad, zero_e, qadd)
+            return y, y
+        jac, value = jax.jacfwd(value_twice, has_aux=True)(zero_e)
+        return value, jac
 
     # the residual at (s', s'') is potential + s'' inertia(q_a,s) + motion(s' q_a,s, s'^2 q_a,ss) +
     # damping, and the motion term is quadratic in s': so at rest, per unit s'' and per unit s'^2
@@ -163,7 +168,7 @@ def pose_coeffs(robot: Robot, qa, qa1, qa2) -> Coeffs:
     # by q_e': the damping matrix (the residual's only term linear in q_e' at rest: the motion term is
     # quadratic in the velocities), and the motion term's (gyroscopic) Jacobian per unit s'
     jv = jax.jacfwd(lambda qed: mdl.residual_term(robot, qa, zero_e, "motion", qa1, qed, qa2))(zero_e)
-    m = mdl.reduced(robot, qa, zero_e, zero2, zero_e).mass
+    m = mdl.reduced_mass(robot, qa, zero_e)
     e, a = slice(2, None), slice(0, 2)
 
     def jx_of(qq):

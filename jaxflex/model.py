@@ -451,6 +451,13 @@ def reduced(robot: Robot, qa, qe, qad, qed) -> Reduced:
     return Reduced(mass=wm.T @ mq @ wm, force=wm.T @ gen, q=q, qd=qd, w_map=wm, w_acc=w_acc)
 
 
+def reduced_mass(robot: Robot, qa, qe) -> jax.Array:
+    """The reduced mass matrix W^T M(q) W (2 + ne, 2 + ne) at (q_a, q_e): ``reduced(...).mass``
+    (which does not depend on the velocities) without tracing the forces."""
+    wm = _velocity_map(robot, jnp.concatenate([qa, qe]))
+    return wm.T @ mass_matrix(robot, full_coordinates(robot, qa, qe)) @ wm
+
+
 def _moving_state(robot: Robot, qa, qe, qad, qed, qadd, qedd):
     """(layout, q, q', q'', project) at the state (q_a, q_e, q_a', q_e') and accelerations (q_a'',
     q_e''): the full coordinates, velocities and accelerations from the closed-form loop closure's
@@ -589,7 +596,7 @@ def locked_modes(robot: Robot, qa):
     with the motors locked at q_a, linearized about the static equilibrium under gravity."""
     qe = static_equilibrium(robot, qa)
     k = locked_stiffness(robot, qa, qe)
-    m = reduced(robot, qa, qe, jnp.zeros(2), jnp.zeros_like(qe)).mass[2:, 2:]
+    m = reduced_mass(robot, qa, qe)[2:, 2:]
     inv = linalg.lower_inverse(linalg.cholesky(m))
     lam, vec = jnp.linalg.eigh(inv @ k @ inv.T)
     shapes = inv.T @ vec

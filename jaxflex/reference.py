@@ -384,7 +384,7 @@ def _ends(robot, masses, end, q_star, x_tf, x_end):
         v = lambda qe: mdl.potential(r, mdl.full_coordinates(r, qa_place, qe))
 
         def energy(x):
-            m_ee = mdl.reduced(r, qa_place, x[:ne], zero, x[ne:]).mass[2:, 2:]
+            m_ee = mdl.reduced_mass(r, qa_place, x[:ne])[2:, 2:]
             return 0.5 * x[ne:] @ m_ee @ x[ne:] + v(x[:ne]) - v(q_star)
 
         return y, jax.vmap(energy)(jnp.stack([x_tf, x_end])), _low_modes(r, qa_place, q_star, x_tf)

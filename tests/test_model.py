@@ -126,6 +126,22 @@ def test_matrix_free_residual_equals_reduced_equations(robot6, pose, richer):
     assert float(jnp.max(jnp.abs(want))) > 1e-3 * float(jnp.max(terms))   # not a sum of cancelling terms only
 
 
+@pytest.mark.parametrize("richer", [False, True])
+def test_reduced_mass_alone_equals_the_reduced_equations_mass(robot6, pose, richer):
+    """``reduced_mass`` (W^T M W without the forces, for the linearization coefficients, the locked
+    modes and the full model's energy) equals ``reduced(...).mass`` at a moving state: the mass
+    matrix does not depend on the velocities, and both take the same products (1e-14 relative: the
+    same operations, compiled as different programs)."""
+    robot = mdl.richer(robot6) if richer else robot6
+    ne = mdl.layout(robot).ne
+    rng = np.random.default_rng(12)
+    qe, qed = jnp.asarray(rng.normal(scale=1e-4, size=ne)), jnp.asarray(rng.normal(scale=1e-1, size=ne))
+    want = _reduced(robot, pose, qe, jnp.array([1.5, -2.0]), qed).mass
+    got = jax.jit(mdl.reduced_mass)(robot, pose, qe)
+    assert got.shape == (2 + ne, 2 + ne)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-14 * float(jnp.max(jnp.abs(want))))
+
+
 @jax.jit
 def _terms_and_residual(robot, pose, qe, qad, qed, qadd):
     zero = jnp.zeros_like(qe)
