@@ -16,7 +16,7 @@ import numpy as np
 from jaxflex import checks
 from jaxflex.path import make_path
 from jaxflex.robot import cycle_preset, robot_preset
-from jaxflex.sweep import PAPER_CASES, default_grid, run_sweep
+from jaxflex.sweep import PAPER_CASES, SweepConfig, default_grid, run_sweep
 from jaxflex.workspace import build_workspace
 
 from .io import provenance, write_json
@@ -71,8 +71,10 @@ def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwe
     from jaxflex.designs import design
     from jaxflex.optimize import staged
     from jaxflex.optimize.objective import encode
-    from jaxflex.optimize.study import (StudyConfig, design_objective, law_objective_args, training_models,
+    from jaxflex.engine import LawEvaluator
+    from jaxflex.optimize.study import (StudyConfig, Training, design_objective, law_objective_args, training_models,
                                         training_weights)
+    from jaxflex.problem import Timing
 
     robot, cycle = robot_preset("default"), cycle_preset()
     grid = default_grid(robot, [tf], dwell)
@@ -85,8 +87,8 @@ def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwe
     t0 = time.perf_counter()
     ws = jax.block_until_ready(build_workspace(models.robots, cycle))
     ws_s = time.perf_counter() - t0
-    f, args = design_objective(models, cycle, tf, dwell, grid, scales, ws, power=c.robust_power,
-                               order=c.law_order, blend=c.blend)
+    timing = Timing(tf, dwell, grid)
+    f, args = design_objective(Training(models, cycle, timing, scales, ws), c.train_config("bench"))
     params = encode(cycle, design(0.0245, 0.03, 3.2, coef, e2=0.035, n2=3.4))
     out = {"design": _time_value_and_grad(f, params, args, repeats, not quick, hot=not quick),
            "steps": grid.steps + grid.dwell_steps}
@@ -94,13 +96,13 @@ def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwe
     out["design"]["stages_s"] = staged.stage_times(f, params, args, hot=not quick, repeats=repeats)
     if not quick:
         path = make_path(cycle, "lame", 0.025)
-        f_law, args_law = law_objective_args(models, path, tf, dwell, grid, scales, power=c.robust_power,
-                                             order=c.law_order)
+        f_law, args_law = law_objective_args(LawEvaluator(models, path, tf, dwell, grid), scales,
+                                             c.train_config("bench"))
         out["law"] = _time_value_and_grad(f_law, coef, args_law, repeats, True, hot=True)
         box = training_models(robot, [payload], "box")
         k = len(box.ids)
-        f_box, args_box = design_objective(box, cycle, tf, dwell, grid, _scales(k, None), build_workspace(box.robots, cycle),
-                                           power=c.robust_power, order=c.law_order, blend=c.blend)
+        f_box, args_box = design_objective(Training(box, cycle, timing, _scales(k, None),
+                                                    build_workspace(box.robots, cycle)), c.train_config("bench"))
         out["design_box"] = _time_value_and_grad(f_box, params, args_box, repeats, False, hot=True)
         out["design_box"]["models"] = k
     return out
@@ -137,7 +139,7 @@ def compute(repeats: int = 5, quick: bool = False) -> dict:
     robot, cycle = robot_preset("default"), cycle_preset()
     print("sweep: 12 combinations x 2 cases (6 kg/0.43 s, 0.1 kg/0.3 s), motion + 0.1 s dwell ...",
           flush=True)
-    res = run_sweep(robot, cycle, PAPER_CASES, repeats=repeats)
+    res = run_sweep(robot, cycle, PAPER_CASES, SweepConfig(repeats=repeats))
     g = res.grid
     steps = 24 * (g.steps + g.dwell_steps)
     sweep = {"rollouts": 24, "tables_s": res.tables_s, "compile_s": res.compile_s, "run_s": res.run_s,

@@ -18,7 +18,7 @@ from jaxflex.path import make_path
 from jaxflex.profiles import make_profile
 from jaxflex.reference import DEFAULT_DT, METHOD_NAMES, reference_rollout
 from jaxflex.robot import cycle_preset, robot_preset
-from jaxflex.sweep import PAPER_CASES, Case, default_grid, run_sweep
+from jaxflex.sweep import PAPER_CASES, Case, SweepConfig, default_grid, run_sweep
 
 from .io import table
 
@@ -39,7 +39,7 @@ def dt_study(dwell: float = 0.1) -> dict:
     runs = {}
     for label, grid in (("base", base), ("quarter", fine)):
         print(f"  dt study: grid {label} {tuple(grid)[:3]}", flush=True)
-        runs[label] = run_sweep(robot, cycle, PAPER_CASES, grid=grid, dwell=dwell, timed=False)
+        runs[label] = run_sweep(robot, cycle, PAPER_CASES, SweepConfig(grid=grid, dwell=dwell, timed=False))
     res = runs["base"]
     for m in METRICS:
         worst, (b, p, c) = _changes(runs["base"].metrics[m], runs["quarter"].metrics[m])
@@ -71,7 +71,7 @@ def reference_study(dt: float | None = None, cases=PAPER_CASES, dwell: float = 0
     out = {"dt": dt, "method": method, "cases": []}
     for case in cases:
         case = Case(*case)
-        fast = run_sweep(robot, cycle, [case], blends=("lame",), dwell=dwell, timed=False)
+        fast = run_sweep(robot, cycle, [case], SweepConfig(blends=("lame",), dwell=dwell, timed=False))
         profiles = [make_profile(p) for p in fast.profiles]
         print(f"  full nonlinear model, {case.payload:g} kg, tf = {case.tf:g} s: {METHOD_NAMES[method]}, "
               f"dt = {dt:g} s ({len(profiles)} laws) ...", flush=True)

@@ -260,7 +260,7 @@ def richer_sweep(n_modes: int = 3, paper: dict | None = None) -> dict:
     are simulated here."""
     from jaxflex.model import modes_at_point, richer
     from jaxflex.robot import cycle_preset, robot_preset
-    from jaxflex.sweep import PAPER_CASES, run_sweep
+    from jaxflex.sweep import PAPER_CASES, SweepConfig, run_sweep
 
     robot, cycle = robot_preset("default"), cycle_preset()
     out = {"n_modes": n_modes, "dwell_residual_mm": {}, "place_freqs_hz": {}}
@@ -268,7 +268,7 @@ def richer_sweep(n_modes: int = 3, paper: dict | None = None) -> dict:
         if label == "paper model" and paper is not None:
             out["dwell_residual_mm"][label] = paper
         else:
-            res = run_sweep(r, cycle, timed=False)
+            res = run_sweep(r, cycle, PAPER_CASES, SweepConfig(timed=False))
             dw = res.metrics["dwell_residual_mm"]
             out["dwell_residual_mm"][label] = {
                 _case_label(c.payload, c.tf): {f"{b}/{p}": float(dw[i, j, k]) for i, b in enumerate(res.blends)

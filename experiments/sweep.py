@@ -5,7 +5,7 @@ import time
 
 from jaxflex.metrics import METRICS, UNITS
 from jaxflex.robot import cycle_preset, robot_preset
-from jaxflex.sweep import Case, results_table, run_sweep
+from jaxflex.sweep import Case, SweepConfig, results_table, run_sweep
 
 from .io import fmt, provenance, table, write_json
 
@@ -19,7 +19,8 @@ def compute(preset: str = "default", payload: float = 6.0, tf: float = 0.43, dt:
     """Simulate every combination; returns the SPEC 7 sweep record."""
     started = time.time()
     robot, cycle = robot_preset(preset), cycle_preset(preset)
-    res = run_sweep(robot, cycle, [Case(payload, tf)], dwell=dwell, dt=dt, repeats=repeats, progress=True)
+    res = run_sweep(robot, cycle, [Case(payload, tf)],
+                    SweepConfig(dwell=dwell, dt=dt, repeats=repeats, progress=True))
     grid = res.grid
     return {"payload": payload, "tf": tf, "dt": tf / grid.steps, "dwell": dwell, "preset": preset,
             "results": results_table(res, 0),

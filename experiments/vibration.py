@@ -15,7 +15,7 @@ from jaxflex.metrics import METRICS, UNITS
 from jaxflex.model import modes_at_point
 from jaxflex.profiles import PROFILES
 from jaxflex.robot import cycle_preset, robot_preset
-from jaxflex.sweep import PAPER_CASES, run_sweep
+from jaxflex.sweep import PAPER_CASES, SweepConfig, run_sweep
 
 from . import paper_data
 from .io import fmt, pct, rel_diff, table
@@ -55,7 +55,7 @@ def compute(quick: bool = False) -> dict:
     started = time.time()
     robot, cycle = robot_preset("default"), cycle_preset()
     print("  12 combinations x 2 cases ...", flush=True)
-    res = run_sweep(robot, cycle, PAPER_CASES, with_series=True, timed=not quick, progress=True)
+    res = run_sweep(robot, cycle, PAPER_CASES, SweepConfig(with_series=True, timed=not quick, progress=True))
     out = {"cases": [c._asdict() for c in res.cases], "grid": res.grid._asdict(),
            "timing": {"compile_s": res.compile_s, "run_s": None if quick else res.run_s}}
     for k, case in enumerate(res.cases):
@@ -63,7 +63,7 @@ def compute(quick: bool = False) -> dict:
     ext = {}
     for label, (blend, e) in EXTENDED.items():
         print(f"  extended blend {label} (d = 25 mm, e = {e * 1e3:g} mm) ...", flush=True)
-        r = run_sweep(robot, cycle, PAPER_CASES, d=0.025, e=e, blends=(blend,), timed=False)
+        r = run_sweep(robot, cycle, PAPER_CASES, SweepConfig(d=0.025, e=e, blends=(blend,), timed=False))
         ext[label] = {str(k): {m: {p: float(r.metrics[m][0, j, k]) for j, p in enumerate(r.profiles)}
                           for m in METRICS} for k in range(len(PAPER_CASES))}
     out["extended"] = ext

@@ -10,6 +10,7 @@ on CPU, ``XLA_FLAGS=--xla_force_host_platform_device_count=2`` exposes two devic
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 import time
 from typing import NamedTuple
@@ -24,10 +25,12 @@ from jaxflex.blends import ALL_BLENDS
 from jaxflex.linearized import build_tables
 from jaxflex.metrics import metrics
 from jaxflex.path import Cycle, Path, check_path_args, make_path
+from jaxflex.problem import Timing
 from jaxflex.profiles import shaped
 from jaxflex.progress import Progress
 from jaxflex.robot import Robot
 from jaxflex.simulate import Grid, Series, check_grid, motion_samples, rollout
+from jaxflex.sweep import default_grid
 from jaxflex.workspace import Workspace, workspace_tables
 
 
@@ -88,19 +91,40 @@ class DesignSweep(NamedTuple):
     run_s: float
 
 
-def sweep_designs(robot: Robot, cycle: Cycle, xs: Design, *, tf: float, dwell: float, grid: Grid,
-                  blend: str = "lame", order: int = 3, second_order: bool = True, chunk: int | None = None,
-                  devices=None, progress: bool = False) -> DesignSweep:
-    """Metrics of a batch of D designs (leaves with a leading axis D).
+@dataclasses.dataclass(frozen=True)
+class DesignSweepConfig:
+    """How ``sweep_designs`` simulates: the ``timing`` (tf [s], dwell [s], grid; None: the default
+    grid for tf, ``jaxflex.sweep.default_grid``), the designs' ``blend`` family, the shaped law's
+    end-factor ``order``, the model order (``second_order``, ``simulate.rollout``), the ``chunk``
+    of designs per compiled call (default 4 per device) and the ``devices`` it is sharded over
+    (default: every local device); ``progress`` on stderr."""
 
-    The batch is cut into chunks of ``chunk`` designs (default 4 per device; the last chunk is padded
-    by repeating its final design and the padding dropped), each chunk sharded over ``devices``
-    (default: all local devices) along a one-dimensional mesh axis ``"design"``. One compilation
-    serves every chunk. Raises ValueError on inconsistent shapes and FloatingPointError naming the
-    first design with a non-finite metric."""
-    tf, dwell = checks.positive("tf", tf, "s"), checks.positive("dwell", dwell, "s")
+    timing: Timing = Timing()
+    blend: str = "lame"
+    order: int = 3
+    second_order: bool = True
+    chunk: int | None = None
+    devices: tuple | None = None
+    progress: bool = False
+
+
+def sweep_designs(robot: Robot, cycle: Cycle, xs: Design,
+                  config: DesignSweepConfig = DesignSweepConfig()) -> DesignSweep:
+    """Metrics of a batch of D designs (leaves with a leading axis D) on ``robot`` as ``config``
+    says (``DesignSweepConfig``).
+
+    The batch is cut into chunks of ``config.chunk`` designs (the last chunk is padded by repeating
+    its final design and the padding dropped), each chunk sharded over the devices along a
+    one-dimensional mesh axis ``"design"``. One compilation serves every chunk. Raises ValueError on
+    inconsistent shapes and FloatingPointError naming the first design with a non-finite metric."""
+    if not isinstance(config, DesignSweepConfig):
+        raise TypeError(f"config must be a DesignSweepConfig, got {type(config).__name__}")
+    tf, dwell = checks.positive("tf", config.timing.tf, "s"), checks.positive("dwell", config.timing.dwell, "s")
+    blend, order, second_order, chunk, devices = (config.blend, config.order, config.second_order, config.chunk,
+                                                  config.devices)
     blend = checks.one_of("blend", blend, ALL_BLENDS)
-    check_grid(grid)
+    if config.timing.grid is not None:
+        check_grid(config.timing.grid)
     if chunk is not None:
         chunk = checks.count("chunk", chunk)
     leaves = [jnp.asarray(v, dtype=float) for v in xs]
@@ -117,6 +141,7 @@ def sweep_designs(robot: Robot, cycle: Cycle, xs: Design, *, tf: float, dwell: f
             shaped(host[3][i], order)
         except ValueError as err:
             raise ValueError(f"design {i}: {err}") from None
+    grid = config.timing.grid if config.timing.grid is not None else default_grid(robot, [tf], dwell)
     devices = list(jax.local_devices() if devices is None else devices)
     chunk = chunk or 4 * len(devices)
     if chunk % len(devices):
@@ -127,7 +152,7 @@ def sweep_designs(robot: Robot, cycle: Cycle, xs: Design, *, tf: float, dwell: f
     padded = Design(*(jnp.concatenate([v, jnp.repeat(v[-1:], pad, axis=0)]) for v in leaves))
     scalars = (jnp.asarray(tf, dtype=float), jnp.asarray(dwell, dtype=float))
     parts = [jax.tree_util.tree_map(lambda v: v[i:i + chunk], padded) for i in range(0, size + pad, chunk)]
-    bar = Progress(f"design sweep ({size} designs)", total=size, unit="design", enabled=progress)
+    bar = Progress(f"design sweep ({size} designs)", total=size, unit="design", enabled=config.progress)
     t0 = time.perf_counter()
     with bar.waiting("compiling the batched rollout", key=f"compile design sweep {chunk} {grid}"):
         compiled = _metrics_batch.lower(robot, cycle, jax.device_put(parts[0], shard), *scalars, grid=grid,

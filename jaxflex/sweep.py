@@ -6,6 +6,7 @@ rollout (blend x profile x case) runs, and the metrics of all of them in a small
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from typing import NamedTuple, Sequence
@@ -104,20 +105,64 @@ def _stacked_tables(robot, cycle, payloads, blends, d, e, n):
             jnp.stack([p[1] for p in poses]))
 
 
-def sweep_tables(robot: Robot, cycle, payloads: Sequence[float], blend: str, *, blends=BLENDS, d=0.025,
-                 e=None, n=3.0) -> Tables:
+@dataclasses.dataclass(frozen=True)
+class SweepConfig:
+    """How ``run_sweep`` builds and runs the combinations (defaults: the paper's sweep, SPEC 3-4).
+
+    blends, profiles: the blend families (``jaxflex.blends.BLENDS``) and motion laws
+    (``jaxflex.profiles.PROFILES``); every pair is simulated for every case. d, e [m], n: the corner
+    blends' parameters (e None: e = d; the paper's d = e = 25 mm, n = 3). dwell [s]: the time
+    simulated after tf. grid: the rollout grid (None: ``default_grid`` for the cases' tf, with the
+    step ``dt`` [s] if given). second_order (default): the full model's second-order remainder is
+    added (``simulate.rollout``; within about 0.3 % of the full nonlinear model on every metric);
+    False: the linearized model. with_series: keep every rollout's ``Series``. repeats: sweeps
+    timed after the first (``SweepResult.run_s`` is their median); timed=False: none (the results
+    only). progress: report the stages on stderr (``jaxflex.progress``)."""
+
+    blends: tuple = BLENDS
+    profiles: tuple = PROFILES
+    d: float = 0.025
+    e: float | None = None
+    n: float = 3.0
+    dwell: float = 0.1
+    dt: float | None = None
+    grid: Grid | None = None
+    second_order: bool = True
+    with_series: bool = False
+    repeats: int = 1
+    timed: bool = True
+    progress: bool = False
+
+    def checked(self, cycle) -> "SweepConfig":
+        """The configuration with tuples, floats and e filled in; ValueError naming a bad field
+        (SPEC 8), before anything compiles."""
+        blends, profiles = tuple(self.blends), tuple(self.profiles)
+        e = self.d if self.e is None else self.e
+        dwell = checks.positive("dwell", self.dwell, "s")
+        dt = None if self.dt is None else checks.positive("dt", self.dt, "s")
+        repeats = checks.count("repeats", self.repeats)
+        if not blends or not profiles:
+            raise ValueError("blends and profiles must not be empty")
+        for p in profiles:
+            checks.one_of("motion profile", p, PROFILES)
+        for b in blends:
+            check_path_args(cycle, b, self.d, e, self.n, self.d, e, self.n)
+        if self.grid is not None:
+            check_grid(self.grid)
+        return dataclasses.replace(self, blends=blends, profiles=profiles, e=e, dwell=dwell, dt=dt, repeats=repeats)
+
+
+def sweep_tables(robot: Robot, cycle, payloads: Sequence[float], blend: str,
+                 config: SweepConfig = SweepConfig()) -> Tables:
     """Linearization tables of one blend's path for every payload [kg] (leaves with a leading payload
-    axis K), as ``run_sweep(..., blends=blends)`` builds them: with the same ``blends`` the compiled
-    table programs of a sweep are reused (no new compilation). ``d``, ``e`` [m], ``n``: the blend."""
-    e = d if e is None else e
-    blends = tuple(blends)
-    if blend not in blends:
-        raise ValueError(f"blend {blend!r} is not among the sweep's blends {blends}")
-    for b in blends:
-        check_path_args(cycle, b, d, e, n, d, e, n)
-    values, breaks, _ = _stacked_tables(robot, cycle, jnp.asarray([float(m) for m in payloads]), blends,
-                                        *(jnp.asarray(v, dtype=float) for v in (d, e, n)))
-    i = blends.index(blend)
+    axis K), as ``run_sweep`` with the same ``config`` builds them (its blends and d, e, n): the
+    compiled table programs of that sweep are reused (no new compilation)."""
+    c = config.checked(cycle)
+    if blend not in c.blends:
+        raise ValueError(f"blend {blend!r} is not among the sweep's blends {c.blends}")
+    values, breaks, _ = _stacked_tables(robot, cycle, jnp.asarray([float(m) for m in payloads]), c.blends,
+                                        *(jnp.asarray(v, dtype=float) for v in (c.d, c.e, c.n)))
+    i = c.blends.index(blend)
     k = len(payloads)
     return Tables(values=jax.tree_util.tree_map(lambda v: v[:, i], values),
                   breaks=jnp.broadcast_to(breaks[i], (k,) + breaks.shape[1:]))
@@ -138,11 +183,10 @@ class SweepResult(NamedTuple):
     tables_s: float
 
 
-def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES, *, d=0.025, e=None, n=3.0,
-              dwell: float = 0.1, dt: float | None = None, blends=BLENDS, profiles=PROFILES,
-              grid: Grid | None = None, with_series: bool = False, repeats: int = 1,
-              second_order: bool = True, timed: bool = True, progress: bool = False) -> SweepResult:
-    """Simulate every blend x profile x case; validate inputs first (no compilation on bad input).
+def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES,
+              config: SweepConfig = SweepConfig()) -> SweepResult:
+    """Simulate every blend x profile (``config``, ``SweepConfig``) for every case (payload [kg],
+    tf [s]); validate inputs first (no compilation on bad input).
 
     Three compiled stages, each shared with the rest of the library: the table poses (one program per
     blend family), the linearization coefficients (``linearized.coeffs_many``) and the rollouts, one
@@ -151,35 +195,26 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES, *, d=0.0
     Timing: ``tables_s`` is the wall time of the table build (compilation included; the
     persistent compilation cache makes it short after the first run on a machine); ``compile_s``
     the first sweep (every rollout through the engine's one program, and the metrics) minus one
-    run; ``run_s`` the median of ``repeats`` sweeps after compilation. ``timed=False`` skips those
-    timed reruns when only the results are wanted (half the run time): ``compile_s`` is then the first
-    sweep's wall time (compilation and one run) and ``run_s`` is nan. ``second_order`` (default) adds the full model's
-    second-order remainder (``simulate.rollout``): agreement with the full nonlinear model within
-    about 0.3 % on every metric; False gives the linearized model (still two passes, the second one
-    making the coefficients continuous; ``grid=Grid(..., continuous=False)`` makes it one pass).
-    ``progress``: report the stages on stderr (``jaxflex.progress``; the CLI's commands turn it on).
+    run; ``run_s`` the median of ``config.repeats`` sweeps after compilation. With
+    ``config.timed=False`` the timed reruns are skipped when only the results are wanted (half the
+    run time): ``compile_s`` is then the first sweep's wall time (compilation and one run) and
+    ``run_s`` is nan. The linearized model alone (``second_order=False``) still takes two passes,
+    the second one making the coefficients continuous; ``grid=Grid(..., continuous=False)`` makes
+    it one pass.
     """
-    e = d if e is None else e
-    blends, profiles, cases = tuple(blends), tuple(profiles), tuple(Case(*c) for c in cases)
+    if not isinstance(config, SweepConfig):
+        raise TypeError(f"config must be a SweepConfig, got {type(config).__name__}")
+    cases = tuple(Case(*c) for c in cases)
     if not cases:
         raise ValueError("no simulation cases given")
     cases = tuple(Case(checks.nonnegative("payload", c.payload, "kg"), checks.positive("tf", c.tf, "s"))
                   for c in cases)
-    dwell = checks.positive("dwell", dwell, "s")
-    if dt is not None:
-        dt = checks.positive("dt", dt, "s")
-    repeats = checks.count("repeats", repeats)
-    if not blends or not profiles:
-        raise ValueError("blends and profiles must not be empty")
-    for p in profiles:
-        checks.one_of("motion profile", p, PROFILES)
-    for b in blends:
-        check_path_args(cycle, b, d, e, n, d, e, n)
+    c = config.checked(cycle)
+    blends, profiles, dwell, repeats, timed, progress = c.blends, c.profiles, c.dwell, c.repeats, c.timed, c.progress
     check_cycle_reachable(robot, cycle)
-    grid = grid or default_grid(robot, [c.tf for c in cases], dwell, dt)
-    check_grid(grid)
-    payloads = jnp.asarray([c.payload for c in cases])
-    d_, e_, n_ = (jnp.asarray(v, dtype=float) for v in (d, e, n))
+    grid = c.grid or default_grid(robot, [case.tf for case in cases], dwell, c.dt)
+    payloads = jnp.asarray([case.payload for case in cases])
+    d_, e_, n_ = (jnp.asarray(v, dtype=float) for v in (c.d, c.e, c.n))
     runs_total = len(blends) * len(profiles) * len(cases)
     bar = stage(f"sweep of {runs_total} rollouts", total=1 + (repeats if timed else 0), unit="sweep",
                 enabled=progress)
@@ -188,11 +223,11 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES, *, d=0.0
         values, breaks, lengths = _stacked_tables(robot, cycle, payloads, blends, d_, e_, n_)
         values = jax.block_until_ready(values)
     tables_s = time.perf_counter() - t0
-    robots = [robot.replace(payload=c.payload) for c in cases]
-    tf_list = [c.tf for c in cases]
+    robots = [robot.replace(payload=case.payload) for case in cases]
+    tf_list = [case.tf for case in cases]
 
     def sweep():
-        series = _sweep_series(values, breaks, lengths, tf_list, dwell, robots, profiles, grid, second_order)
+        series = _sweep_series(values, breaks, lengths, tf_list, dwell, robots, profiles, grid, c.second_order)
         return engine.metrics_of(series), series
 
     t0 = time.perf_counter()
@@ -210,7 +245,7 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES, *, d=0.0
     run_s = float(np.median(runs)) if runs else float("nan")
     _check_finite(mets, blends, profiles, cases)
     compile_s = max(first - run_s, 0.0) if runs else first
-    return SweepResult(mets, series if with_series else None, blends, profiles, cases, grid,
+    return SweepResult(mets, series if c.with_series else None, blends, profiles, cases, grid,
                        compile_s, run_s, tables_s)
 
 

@@ -16,6 +16,7 @@ compiles its gradient once.
 """
 from __future__ import annotations
 
+import dataclasses
 import time
 from typing import NamedTuple, Sequence
 
@@ -25,9 +26,9 @@ import numpy as np
 from jaxflex import checks
 from jaxflex.designs import design_path
 from jaxflex.path import make_path
-from jaxflex.problem import Problem
+from jaxflex.problem import Problem, Timing
 from jaxflex.profiles import make_profile, shaped
-from jaxflex.sweep import Case, default_grid, run_sweep
+from jaxflex.sweep import Case, SweepConfig, default_grid, run_sweep
 
 from jaxflex.engine import LawEvaluator
 from jaxflex.model_sets import model_set
@@ -36,7 +37,7 @@ from .loop import compile_gradient_ahead, is_hot
 from .objective import decode, encode
 from .study import (PERTURB_E, PERTURB_PAYLOAD, StudyConfig, _abstract_scales, _check_problem, _workspaces,
                     check_study_args, design_objective, nominal_indices, reference_scales, start_design,
-                    torque_bounds, train_design, training_models, training_weights)
+                    torque_bounds, Training, train_design, training_models, training_weights)
 
 TORQUE_TOL = 1.01   # a design counts when its peak torque is within 1 % of the bound (soft penalty)
 
@@ -94,13 +95,12 @@ def cycle_time_study(problem: Problem, tfs: Sequence[float] = (0.43, 0.40, 0.37,
     params = encode(cycle, start_design(cycle, n_coef, config.blend))
     if steps > 0:
         # the design gradient (one program for every tf) compiles in the background during the sweep
-        f, args = design_objective(models, cycle, float(tfs[0]), dwell, grid,
-                                   _abstract_scales(len(models.ids), training_weights(train)),
-                                   workspace_shapes(models.robots, cycle), power=config.robust_power,
-                                   order=config.law_order, blend=config.blend)
+        f, args = design_objective(Training(models, cycle, Timing(float(tfs[0]), dwell, grid),
+                                            _abstract_scales(len(models.ids), training_weights(train)),
+                                            workspace_shapes(models.robots, cycle)), config.train_config("design"))
         compile_gradient_ahead(params, args, f=f, hot=is_hot(steps))
-    res = run_sweep(robot, cycle, [Case(payload, float(t)) for t in tfs], dwell=dwell, grid=grid,
-                    timed=False)
+    res = run_sweep(robot, cycle, [Case(payload, float(t)) for t in tfs],
+                    SweepConfig(dwell=dwell, grid=grid, timed=False))
     dw = res.metrics["dwell_residual_mm"]                                   # (B, P, T)
     k_ref = int(np.argmin(np.abs(tfs - tf_ref)))
     i, j = np.unravel_index(np.argmin(dw[:, :, k_ref]), dw.shape[:2])
@@ -126,10 +126,10 @@ def cycle_time_study(problem: Problem, tfs: Sequence[float] = (0.43, 0.40, 0.37,
     for tf in tfs:
         scales = reference_scales(ref_eval, make_profile(law), bounds, tf=float(tf), weights=training_weights(train),
                                   absolute=config.absolute)
-        result = train_design(models, cycle, float(tf), dwell, grid, scales, params, steps=steps,
-                              learning_rate=learning_rate, progress=progress, label=f"design tf={tf:g}",
-                              workspaces=workspaces, power=config.robust_power, order=config.law_order,
-                              blend=config.blend, memo=config.memo)
+        # one optimization per tf: no checkpoint (StudyConfig.checkpoint is one file)
+        train_config = dataclasses.replace(config.train_config(f"design tf={tf:g}"), checkpoint=None)
+        result = train_design(Training(models, cycle, Timing(float(tf), dwell, grid), scales, workspaces), params,
+                              train_config)
         params = result.params
         x = jax.tree_util.tree_map(np.asarray, decode(cycle, params))
         path = design_path(cycle, x, config.blend)

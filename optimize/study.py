@@ -53,12 +53,12 @@ from jaxflex import checks
 from jaxflex.blends import BLENDS, DESIGN_BLENDS
 from jaxflex.designs import Design, design, design_path
 from jaxflex.engine import LawEvaluator
-from jaxflex.linearized import _robot_list, path_tables
+from jaxflex.linearized import _robot_list
 from jaxflex.model import richer
 from jaxflex.model_sets import ModelId, ModelSet, model_set, models_of, place_first_mode_hz
 from jaxflex.parallel import Beside
-from jaxflex.path import Cycle, Path, make_path
-from jaxflex.problem import Problem
+from jaxflex.path import Cycle, make_path
+from jaxflex.problem import Problem, Timing
 from jaxflex.profiles import PROFILES, make_profile, shaped
 from jaxflex.progress import Progress
 from jaxflex.robot import Robot, check_cycle_reachable
@@ -348,6 +348,13 @@ class StudyConfig:
     richer_modes: int = 3
     memo: str | os.PathLike | None = None
 
+    def train_config(self, label: str) -> "TrainConfig":
+        """The training configuration of this study's optimizer (``train_design``, ``train_law``),
+        reporting under ``label``."""
+        return TrainConfig(steps=self.steps, learning_rate=self.learning_rate, checkpoint=self.checkpoint,
+                           progress=self.progress, label=label, memo=self.memo, power=self.robust_power,
+                           order=self.law_order, blend=self.blend)
+
     def checked(self) -> "StudyConfig":
         """Validate the fields that the study's own argument check does not (SPEC 8: before
         anything compiles); ValueError naming the field."""
@@ -542,7 +549,7 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
     tf, dwell, grid = problem.timing
     c = config
     n_coef, steps, learning_rate, train, free_path = c.n_coef, c.steps, c.learning_rate, c.train, c.free_path
-    checkpoint, ruckig, progress, init = c.checkpoint, c.ruckig, c.progress, c.init
+    ruckig, progress, init = c.ruckig, c.progress, c.init
     payloads, tf, dwell = check_study_args(robot, cycle, payloads, tf, dwell, n_coef, steps, learning_rate, train)
     c = c.checked()
     if init is not None:
@@ -555,14 +562,15 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
     models = training_models(robot, payloads, train, box=c.box, points=c.box_points, cycle=cycle)
     weights = training_weights(train, len(payloads))
     workspaces = None
+    train_config = c.train_config(f"{'design' if free_path else 'law'} tf={tf:g}")
     if free_path:
         # the design gradient compiles (about half a minute cold) in the background from the start, during
         # the workspace tables and the paper sweep: its workspace and scales are only shapes until then
         x0 = init if init is not None else start_design(cycle, n_coef, c.blend)
         if steps > 0:
-            f, args = design_objective(models, cycle, tf, dwell, grid, _abstract_scales(len(models.ids), weights),
-                                       workspace_shapes(models.robots, cycle), power=c.robust_power,
-                                       order=c.law_order, blend=c.blend)
+            shapes = Training(models, cycle, Timing(tf, dwell, grid), _abstract_scales(len(models.ids), weights),
+                              workspace_shapes(models.robots, cycle))
+            f, args = design_objective(shapes, train_config)
             compile_gradient_ahead(encode(cycle, x0), args, f=f, hot=is_hot(steps))
         workspaces = _workspaces(models, cycle, progress, c.memo)
     nominal = nominal_indices(models, payloads)
@@ -577,7 +585,6 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
                                                     per_model=not (c.absolute and free_path), progress=progress)
     torque_bound = bounds[nominal]
     scales = scales_from_metrics(ref, bounds, weights, models if c.absolute else None)
-    label = f"{'design' if free_path else 'law'} tf={tf:g}"
     # baselines on the best paper path: the best law, its shaped versions (first payload's mode), Ruckig.
     # They, the evaluation sets and the baselines' evaluations on them do not depend on the design:
     # they are computed beside the optimizer (a background thread), the optimized design after it
@@ -594,18 +601,14 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
     setup_s = time.time() - started
     with beside:
         if free_path:
-            result = train_design(models, cycle, tf, dwell, grid, scales, encode(cycle, x0), steps=steps,
-                                  learning_rate=learning_rate, checkpoint=checkpoint, progress=progress,
-                                  label=label, workspaces=workspaces, power=c.robust_power, order=c.law_order,
-                                  blend=c.blend, memo=c.memo)
+            result = train_design(Training(models, cycle, Timing(tf, dwell, grid), scales, workspaces),
+                                  encode(cycle, x0), train_config)
             x = jax.tree_util.tree_map(np.asarray, decode(cycle, result.params))
             paths["optimized"] = design_path(cycle, x, c.blend)
             coef = np.asarray(x.coef)
         else:
             c0 = np.ones(n_coef) if init is None else np.asarray(init.coef)
-            result = train_law(train_paper, paths["paper"], tf, scales, c0, steps=steps,
-                               learning_rate=learning_rate, checkpoint=checkpoint, progress=progress, label=label,
-                               power=c.robust_power, order=c.law_order, memo=c.memo)
+            result = train_law(train_paper, scales, c0, train_config)
             x, coef = None, np.asarray(result.params)
             paths["optimized"] = paths["paper"]
         wait = Progress("evaluation sets and baselines", enabled=progress)
@@ -681,36 +684,75 @@ class LawObjective:
                              torque_weight=self.torque_weight, power=self.power)
 
 
-def train_design(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid: Grid, scales: Scales,
-                 init: Params, *, steps: int = 100, learning_rate: float = 0.05, checkpoint=None,
-                 progress: bool = True, patience: int = 40, label: str = "design",
-                 workspaces: Workspace | None = None, power: float = 1.0, order: int = 3,
-                 blend: str = BLEND_FAMILY, memo=None) -> OptResult:
-    """Optimize the design parameters (start ``init``) on ``models`` at motion time tf [s] with the
-    normalization ``scales`` (Adam; learning rate warmed up, then cosine-decayed). The path tables
+class Training(NamedTuple):
+    """What ``train_design`` optimizes a design on: the ``models`` (a ``ModelSet``, stacked), the
+    ``cycle``, the ``timing`` (tf [s], dwell [s] and the rollout grid, which must be given), the
+    normalization ``scales`` (``objective.Scales``, one per model) and the models' ``workspaces``
+    (``jaxflex.workspace``; None: built from the models)."""
+
+    models: ModelSet
+    cycle: Cycle
+    timing: Timing
+    scales: Scales
+    workspaces: Workspace | None = None
+
+
+@dataclasses.dataclass(frozen=True)
+class TrainConfig:
+    """How ``train_design`` and ``train_law`` run: Adam for at most ``steps`` updates at
+    ``learning_rate`` (warmed up, then cosine-decayed; stop after ``patience`` steps without
+    improvement), saving to and resuming from ``checkpoint`` (a .npz path), reporting on stderr under
+    ``label`` with ``progress``, and a ``memo`` directory of finished optimizations
+    (``loop.OptimizerConfig``); the objective's ``power`` (order of the power mean over the
+    models, ``objective.combine``), the shaped law's end-factor ``order`` and the design's
+    ``blend`` family (``train_design`` only)."""
+
+    steps: int = 100
+    learning_rate: float = 0.05
+    patience: int = 40
+    checkpoint: str | os.PathLike | None = None
+    progress: bool = True
+    label: str = "design"
+    memo: str | os.PathLike | None = None
+    power: float = 1.0
+    order: int = 3
+    blend: str = BLEND_FAMILY
+
+    def optimizer(self) -> OptimizerConfig:
+        """The optimizer's configuration (``loop.minimize``): decaying rate, the training models'
+        dwell residuals recorded at every step."""
+        return OptimizerConfig(steps=self.steps, learning_rate=self.learning_rate, decay=True, patience=self.patience,
+                               checkpoint=self.checkpoint, progress=self.progress, label=self.label, monitor=_dwell,
+                               memo=self.memo)
+
+
+def train_design(training: Training, init: Params, config: TrainConfig = TrainConfig()) -> OptResult:
+    """Optimize the design parameters (start ``init``) on ``training`` (its models at its motion
+    time with its normalization; ``Training``) as ``config`` says (``TrainConfig``). The path tables
     inside the objective come from the models' workspace tables (``jaxflex.workspace``, built here
-    or passed as ``workspaces``): the gradient compiles in about a third of the time it takes
-    through the model's table build. ``power``: order of the power mean over the models
-    (``objective.combine``)."""
-    _check_training(tf, dwell, steps, learning_rate)
-    f, args = design_objective(models, cycle, tf, dwell, grid, scales, workspaces, power=power, order=order,
-                               blend=blend)
-    return minimize(f, init, args, OptimizerConfig(steps=steps, learning_rate=learning_rate, decay=True,
-                                                   patience=patience, checkpoint=checkpoint, progress=progress,
-                                                   label=label, monitor=_dwell, memo=memo))
+    unless ``training.workspaces`` holds them): the gradient compiles in about a third of the time
+    it takes through the model's table build."""
+    _check_training(training.timing.tf, training.timing.dwell, config.steps, config.learning_rate)
+    f, args = design_objective(training, config)
+    return minimize(f, init, args, config.optimizer())
 
 
-def design_objective(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid: Grid, scales: Scales,
-                     workspaces: Workspace | None = None, *, power: float = 1.0, order: int = 3,
-                     blend: str = BLEND_FAMILY) -> tuple:
-    """(f, args): the design objective and its traced arguments exactly as ``train_design`` hands them
-    to the optimizer, so that ``loop.value_and_grad(params, args, f=f)`` is the optimizer's own value
-    and gradient (one compiled program per grid and number of models)."""
+def design_objective(training: Training, config: TrainConfig = TrainConfig()) -> tuple:
+    """(f, args): the design objective on ``training`` (its models, cycle, timing, scales and
+    workspace tables, built here if None; the scales and workspaces may be ``jax.ShapeDtypeStruct``
+    shapes, to compile ahead) with ``config``'s power, law order and blend, and its traced
+    arguments exactly as ``train_design`` hands them to the optimizer, so that
+    ``loop.value_and_grad(params, args, f=f)`` is the optimizer's own value and gradient (one
+    compiled program per grid and number of models)."""
+    models, cycle, (tf, dwell, grid), scales, workspaces = training
+    if grid is None:
+        raise ValueError("the design objective needs the timing's grid (jaxflex.sweep.default_grid gives the "
+                         "default one)")
     check_grid(grid)
     if workspaces is None:
         workspaces = build_workspace(models.robots, cycle)
     args = (models.robots, cycle, _host_scalar(tf), _host_scalar(dwell), _canonical(scales), workspaces)
-    return DesignObjective(grid, blend=blend, order=int(order), power=float(power)), args
+    return DesignObjective(grid, blend=config.blend, order=int(config.order), power=float(config.power)), args
 
 
 def _abstract_scales(k: int, weights) -> Scales:
@@ -729,29 +771,25 @@ def _canonical(scales: Scales) -> Scales:
     return Scales(*(v if v is None or isinstance(v, jax.ShapeDtypeStruct) else _host_scalar(v) for v in scales))
 
 
-def train_law(train: LawEvaluator, path: Path, tf: float, scales: Scales, init, *, steps: int = 100,
-              learning_rate: float = 0.05, checkpoint=None, progress: bool = True, patience: int = 40,
-              label: str = "law", power: float = 1.0, order: int = 3, memo=None) -> OptResult:
+def train_law(evaluator: LawEvaluator, scales: Scales, init,
+              config: TrainConfig = TrainConfig(label="law")) -> OptResult:
     """Optimize the shaped-law coefficients (start ``init`` (m + 1,)) on the training models of
-    ``train`` (its path) at motion time tf [s] with the normalization ``scales``."""
-    _check_training(tf, train.dwell, steps, learning_rate)
-    f, args = law_objective_args(train.models, path, tf, train.dwell, train.grid, scales, train.tables, power=power,
-                                 order=order)
-    return minimize(f, jnp.asarray(init, dtype=float), args,
-                    OptimizerConfig(steps=steps, learning_rate=learning_rate, decay=True, patience=patience,
-                                    checkpoint=checkpoint, progress=progress, label=label, monitor=_dwell,
-                                    memo=memo))
+    ``evaluator`` (along its path, at its motion time tf [s], dwell and grid, with its tables) with
+    the normalization ``scales``, as ``config`` says (``TrainConfig``; its blend is not used)."""
+    _check_training(evaluator.tf, evaluator.dwell, config.steps, config.learning_rate)
+    f, args = law_objective_args(evaluator, scales, config)
+    return minimize(f, jnp.asarray(init, dtype=float), args, config.optimizer())
 
 
-def law_objective_args(models: ModelSet, path: Path, tf: float, dwell: float, grid: Grid, scales: Scales,
-                       tables=None, *, power: float = 1.0, order: int = 3) -> tuple:
-    """(f, args): the law objective on a fixed path and its traced arguments as ``train_law`` hands
-    them to the optimizer (``tables``: the path's tables for the models, built here if None)."""
-    check_grid(grid)
-    tables = path_tables(models.robots, path) if tables is None else tables
-    args = (tables, jnp.asarray(path.length, dtype=float), _host_scalar(tf), _host_scalar(dwell), _canonical(scales),
-            models.robots)
-    return LawObjective(grid, order=int(order), power=float(power)), args
+def law_objective_args(evaluator: LawEvaluator, scales: Scales, config: TrainConfig = TrainConfig(label="law")) \
+        -> tuple:
+    """(f, args): the law objective on ``evaluator``'s path, models, tf, dwell, grid and tables, with
+    the normalization ``scales`` and ``config``'s power and law order, and its traced arguments as
+    ``train_law`` hands them to the optimizer."""
+    check_grid(evaluator.grid)
+    args = (evaluator.tables, jnp.asarray(evaluator.path.length, dtype=float), _host_scalar(evaluator.tf),
+            _host_scalar(evaluator.dwell), _canonical(scales), evaluator.models.robots)
+    return LawObjective(evaluator.grid, order=int(config.order), power=float(config.power)), args
 
 
 def _check_training(tf, dwell, steps, learning_rate):

@@ -67,29 +67,30 @@ def test_law_gradient_matches_central_differences_full_6kg_rollout():
     the law, so a 1e-4 step can straddle a kink (errors up to 5e-5); at 1e-5 the measured errors are
     <= 6e-7). The program is the one ``jaxflex optimize --law-only --train nominal`` compiles."""
     from jaxflex.optimize.loop import value_and_grad
+    from jaxflex.engine import LawEvaluator
     from jaxflex.optimize.study import StudyConfig, law_objective_args, training_models
 
     robot, cycle = robot_preset("default"), cycle_preset()
     models = training_models(robot, [6.0], "nominal")
-    config = dict(power=StudyConfig.robust_power, order=StudyConfig.law_order)   # the command's objective
+    config = StudyConfig().train_config("law")                  # the command's objective
     path = make_path(cycle, "lame", 0.025)
     grid = default_grid(robot, [TF], DWELL)
     coef = jnp.asarray([1.0, 1.3, 0.8, 1.1, 0.9, 1.2])
     scales = Scales(jnp.full(1, 1e-3), jnp.full(1, 1e-10), jnp.full(1, jnp.inf), jnp.ones(1))
-    f, args = law_objective_args(models, path, TF, DWELL, grid, scales, **config)
+    evaluator = LawEvaluator(models, path, TF, DWELL, grid)
+    f, args = law_objective_args(evaluator, scales, config)
     torque = float(value_and_grad(coef, args, f=f)[0][1]["torque"][0])
     # a bound 1 % below the peak torque: the penalty term is on, and its size comparable to the rest
     scales = Scales(jnp.full(1, 1e-3), jnp.full(1, 1e-10), jnp.full(1, 0.99 * torque), jnp.ones(1))
-    f, args = law_objective_args(models, path, TF, DWELL, grid, scales, args[0], **config)
+    f, args = law_objective_args(evaluator, scales, config)
     (value, aux), grad = value_and_grad(coef, args, f=f)
     assert np.isfinite(float(value)) and np.all(np.isfinite(np.asarray(grad)))
     # the objective's rollout (``simulate.rollout``, one traced function inside the gradient) and the
     # evaluation engine's (the same steps as three programs: first pass, remainder, second pass) give
     # the same metrics: measured within 6e-14, while between the engine's programs the continuity
     # correction lost or the remainder added twice moves them by 3e-2, the remainder 5 % off by 1.5e-3
-    from jaxflex.engine import LawEvaluator
     from jaxflex.profiles import shaped
-    ev = LawEvaluator(models, path, TF, DWELL, grid)(shaped(coef, config["order"]))
+    ev = evaluator(shaped(coef, config.order))
     for k, v in aux["metrics"].items():
         assert float(v[0]) == pytest.approx(float(ev[k][0]), rel=1e-9), (k, float(v[0]), float(ev[k][0]))
     value_of = lambda c: float(value_and_grad(c, args, f=f)[0][0])
@@ -252,23 +253,25 @@ def test_the_optimizers_own_gradient_matches_central_differences():
     this check share them."""
     from jaxflex.optimize import staged
     from jaxflex.optimize.loop import value_and_grad
-    from jaxflex.optimize.study import StudyConfig, design_objective, training_models
+    from jaxflex.optimize.study import StudyConfig, Training, design_objective, training_models
+    from jaxflex.problem import Timing
 
     robot, cycle = robot_preset("default"), cycle_preset()
     models = training_models(robot, [0.1, 6.0], "nominal")
-    config = dict(power=StudyConfig.robust_power, order=StudyConfig.law_order, blend=StudyConfig.blend)
+    config = StudyConfig().train_config("design")              # the command's objective
     grid = default_grid(robot, [TF], DWELL)
+    timing = Timing(TF, DWELL, grid)
     p0 = encode(cycle, design(d=0.02, e=0.03, n=3.5, coef=[1.0, 1.2, 0.9, 1.1, 0.8, 1.05], d2=0.022, e2=0.04,
                               n2=3.2))
     refs = dict(energy=jnp.asarray([1e-4, 1e-3]), dwell_ms=jnp.asarray([1e-11, 1e-10]))
-    f, args = design_objective(models, cycle, TF, DWELL, grid, Scales(**refs, torque_bound=jnp.full(2, jnp.inf)),
-                               **config)
+    training = Training(models, cycle, timing, Scales(**refs, torque_bound=jnp.full(2, jnp.inf)))
+    f, args = design_objective(training, config)
     torque = np.asarray(staged.value(f, p0, args)[1]["torque"])
     # a bound 1 % below the 6 kg model's peak torque: its penalty term is on, and its size comparable to
     # the rest; the 0.1 kg model stays within its bound
     bound = jnp.asarray([1.01 * torque[0], 0.99 * torque[1]])
-    f, args = design_objective(models, cycle, TF, DWELL, grid, Scales(**refs, torque_bound=bound), args[-1],
-                               **config)
+    f, args = design_objective(training._replace(scales=Scales(**refs, torque_bound=bound), workspaces=args[-1]),
+                               config)
     (value, aux), grad = value_and_grad(p0, args, f=f)
     programs = staged.cache_size()
     np.testing.assert_allclose(np.asarray(aux["torque"]), torque, rtol=1e-12)
@@ -284,8 +287,8 @@ def test_the_optimizers_own_gradient_matches_central_differences():
             assert abs(g - fd) <= 1e-4 * max(abs(fd), 1e-3 * float(jnp.abs(getattr(grad, field)).max())), \
                 (field, i, g, fd)
     one = training_models(robot, [6.0], "nominal")
-    f1, args1 = design_objective(one, cycle, TF, DWELL, grid, Scales(jnp.full(1, 1e-3), jnp.full(1, 1e-10),
-                                                                     bound[1:]), **config)
+    one_scales = Scales(jnp.full(1, 1e-3), jnp.full(1, 1e-10), bound[1:])
+    f1, args1 = design_objective(Training(one, cycle, timing, one_scales), config)
     (value1, aux1), _ = value_and_grad(p0, args1, f=f1)
     np.testing.assert_allclose(np.asarray(aux1["torque"]), torque[1:], rtol=1e-12)
     assert staged.cache_size() == programs + 1, "a new number of models compiled more than its combination"
@@ -302,19 +305,22 @@ def test_the_staged_design_gradient_equals_the_one_program_gradient():
     import dataclasses
 
     from jaxflex.optimize.loop import value_and_grad
-    from jaxflex.optimize.study import StudyConfig, design_objective, subset, training_models
+    from jaxflex.optimize.study import StudyConfig, Training, design_objective, subset, training_models
+    from jaxflex.problem import Timing
 
     robot, cycle = robot_preset("default"), cycle_preset()
     models = subset(training_models(robot, [6.0], "box"), [0, 4, 8])
-    config = dict(power=StudyConfig.robust_power, order=StudyConfig.law_order, blend=StudyConfig.blend)
+    config = StudyConfig().train_config("design")
     grid = default_grid(robot, [TF], DWELL)
     p0 = encode(cycle, design(d=0.02, e=0.03, n=3.5, coef=[1.0, 1.2, 0.9, 1.1, 0.8, 1.05], d2=0.022, e2=0.04,
                               n2=3.2))
     scales = Scales(jnp.full(3, 1e-3), jnp.full(3, 1e-10), jnp.full(3, jnp.inf))
-    f, args = design_objective(models, cycle, TF, DWELL, grid, scales, **config)
+    training = Training(models, cycle, Timing(TF, DWELL, grid), scales)
+    f, args = design_objective(training, config)
     torque = np.asarray(value_and_grad(p0, args, f=f)[0][1]["torque"])
     bound = jnp.asarray(torque * np.array([1.01, 0.99, 1.01]))
-    f, args = design_objective(models, cycle, TF, DWELL, grid, scales._replace(torque_bound=bound), args[-1], **config)
+    f, args = design_objective(training._replace(scales=scales._replace(torque_bound=bound), workspaces=args[-1]),
+                               config)
     (v, aux), g = value_and_grad(p0, args, f=f)
     (v1, aux1), g1 = value_and_grad(p0, args, f=dataclasses.replace(f, staged_gradient=False))
     assert abs(float(v) - float(v1)) <= 1e-9 * abs(float(v1))
@@ -363,14 +369,14 @@ def test_paper_sweep_on_training_models_matches_run_sweep_and_chunks_do_not_chan
     from jaxflex.model_sets import model_set
     from jaxflex.optimize.study import PERTURB_E, PERTURB_PAYLOAD, nominal_indices, paper_sweep, training_models
     from jaxflex.profiles import make_profile
-    from jaxflex.sweep import Case, run_sweep
+    from jaxflex.sweep import Case, SweepConfig, run_sweep
 
     robot, cycle = robot_preset("default"), cycle_preset()
     grid = default_grid(robot, [TF], DWELL)
     blends, laws = ("lame",), ("poly7", "trap_1_4")
     models = training_models(robot, [6.0], "spanning")
     sweep = paper_sweep(models, cycle, TF, DWELL, grid, blends=blends, profiles=laws)
-    res = run_sweep(robot, cycle, [Case(6.0, TF)], blends=blends, profiles=laws, grid=grid, timed=False)
+    res = run_sweep(robot, cycle, [Case(6.0, TF)], SweepConfig(blends=blends, profiles=laws, grid=grid, timed=False))
     assert np.isnan(res.run_s) and res.compile_s > 0          # untimed: one sweep, no timed rerun
     i = int(nominal_indices(models, [6.0])[0])
     for name in ("dwell_residual_mm", "max_torque_nm", "residual_energy", "max_deflection_mm"):

@@ -11,7 +11,7 @@ from jaxflex.path import make_path
 from jaxflex.profiles import make_profile
 from jaxflex.reference import reference_rollout
 from jaxflex.robot import cycle_preset, robot_preset
-from jaxflex.sweep import Case, run_sweep
+from jaxflex.sweep import Case, SweepConfig, run_sweep
 
 pytestmark = pytest.mark.slow
 
@@ -65,7 +65,7 @@ def test_fast_matches_full_nonlinear_model_lame(setup, full, payload, tf):
     accelerations). The first-order model's error, O(q_e^2) ~ 0.6 um, would be 3.6 % of trap_1_4's
     17 um residual."""
     robot, _, cycle = setup
-    fast = run_sweep(robot, cycle, [Case(payload, tf)], blends=("lame",), timed=False)
+    fast = run_sweep(robot, cycle, [Case(payload, tf)], SweepConfig(blends=("lame",), timed=False))
     laws, ref_m = full[payload]
     assert list(fast.profiles) == laws
     for k in METRICS:

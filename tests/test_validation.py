@@ -96,15 +96,15 @@ def compilations():
 def _entry_points():
     """(name, callable taking keyword overrides, {argument: bad values}) for every public entry
     point that compiles."""
-    from jaxflex.designs import design, sweep_designs
+    from jaxflex.designs import DesignSweepConfig, design, sweep_designs
     from jaxflex.experiments import bench, reproduce
     from jaxflex.model_sets import model_set
     from jaxflex.optimize.cycle_time import cycle_time_study
     from jaxflex.optimize.objective import Scales, encode
-    from jaxflex.optimize.study import StudyConfig, optimize_design, train_design, train_law
+    from jaxflex.optimize.study import StudyConfig, TrainConfig, Training, optimize_design, train_design, train_law
     from jaxflex.problem import Problem, Timing
     from jaxflex.simulate import Grid
-    from jaxflex.sweep import Case, run_sweep
+    from jaxflex.sweep import Case, SweepConfig, run_sweep
     from jaxflex.uncertainty import Box
 
     grid = Grid(coarse=96, fine=4, dwell_steps=100)
@@ -117,16 +117,17 @@ def _entry_points():
     params = encode(CYCLE, design(coef=np.ones(4)))
 
     def sweep(tf=0.43, payload=6.0, **kw):
-        return run_sweep(ROBOT, CYCLE, [Case(payload, tf)], **kw)
+        return run_sweep(ROBOT, CYCLE, [Case(payload, tf)], SweepConfig(**kw))
 
     class _Evaluator:            # what train_law reads of its evaluator (no tables built)
-        def __init__(self, dwell=0.1):
-            self.models, self.grid, self.dwell, self.tables = models, grid, dwell, None
+        def __init__(self, tf=0.43, dwell=0.1):
+            self.models, self.grid, self.tf, self.dwell, self.tables, self.path = models, grid, tf, dwell, None, None
 
     return [
         ("run_sweep", sweep, {"tf": bad_times, "payload": bad_payloads, "dwell": bad_times, "dt": bad_times,
                               "repeats": [0, -1, 1.5], "profiles": [("poly5",)], "blends": [("spline",)]}),
-        ("sweep_designs", lambda **kw: sweep_designs(ROBOT, CYCLE, xs, **{"tf": 0.43, "dwell": 0.1, "grid": grid, **kw}),
+        ("sweep_designs", lambda tf=0.43, dwell=0.1, **kw: sweep_designs(
+            ROBOT, CYCLE, xs, DesignSweepConfig(Timing(tf, dwell, grid), **kw)),
          {"tf": bad_times, "dwell": bad_times, "chunk": [0, -4], "blend": ["spline"]}),
         ("optimize_design", lambda **kw: optimize_design(
             Problem(ROBOT, CYCLE, kw.pop("payloads", (6.0,)), Timing(kw.pop("tf", 0.43), kw.pop("dwell", 0.1))),
@@ -136,11 +137,11 @@ def _entry_points():
           "train": ["everything"], "blend": ["spline", "clothoid"], "box_points": [0, 2, -3],
           "box_samples": [-1, 2.5], "robust_power": [0.0, -8.0, float("nan")],
           "box": [Box(young=-0.05), Box(payload=1.5), Box(damping=(0.01, 0.0)), Box(length=float("nan"))]}),
-        ("train_design", lambda **kw: train_design(models, CYCLE, **{"tf": 0.43, "dwell": 0.1, "grid": grid,
-                                                                      "scales": scales, "init": params, **kw}),
+        ("train_design", lambda tf=0.43, dwell=0.1, **kw: train_design(
+            Training(models, CYCLE, Timing(tf, dwell, grid), scales), params, TrainConfig(**kw)),
          {"tf": bad_times, "dwell": bad_times, "steps": [-1, 0.5], "learning_rate": bad_times}),
-        ("train_law", lambda dwell=0.1, **kw: train_law(_Evaluator(dwell), None, **{"tf": 0.43, "scales": scales,
-                                                                                      "init": np.ones(4), **kw}),
+        ("train_law", lambda tf=0.43, dwell=0.1, **kw: train_law(_Evaluator(tf, dwell), scales, np.ones(4),
+                                                                 TrainConfig(**kw)),
          {"tf": bad_times, "dwell": bad_times, "steps": [-1], "learning_rate": bad_times}),
         ("cycle_time_study", lambda **kw: cycle_time_study(
             Problem(ROBOT, CYCLE, (kw.pop("payloads", 6.0),), Timing(kw.pop("tf", 0.43))), kw.pop("tfs", (0.43, 0.4)),
@@ -179,6 +180,35 @@ def test_every_entry_point_rejects_bad_values_naming_them_before_compiling(name,
                 "tf_ref": "tf", "tfs": "tfs", "blend": "blend"}.get(arg, arg)
     assert expected in text, (name, arg, value, text)
     assert compilations[0] == 0, f"{name}({arg}={value!r}) compiled {compilations[0]} programs before rejecting it"
+
+
+def test_configured_entry_points_refuse_a_wrong_configuration(compilations):
+    """run_sweep, sweep_designs, train_design and train_law take their options as one configuration
+    value: another type there, or a training timing without its grid, is refused before anything
+    compiles."""
+    from jaxflex.designs import sweep_designs
+    from jaxflex.model_sets import model_set
+    from jaxflex.optimize.objective import Scales, encode
+    from jaxflex.optimize.study import TrainConfig, Training, train_design, train_law
+    from jaxflex.designs import design
+    from jaxflex.problem import Timing
+    from jaxflex.sweep import PAPER_CASES, run_sweep
+
+    one = jnp.ones(1)
+    training = Training(model_set(ROBOT, [6.0]), CYCLE, Timing(0.43, 0.1), Scales(one, one, one))
+    params = encode(CYCLE, design(coef=np.ones(4)))
+    compilations[0] = 0
+    with pytest.raises(TypeError, match="config must be a SweepConfig, got dict"):
+        run_sweep(ROBOT, CYCLE, PAPER_CASES, {"timed": False})
+    with pytest.raises(TypeError):
+        run_sweep(ROBOT, CYCLE, PAPER_CASES, timed=False)          # the options live in SweepConfig
+    with pytest.raises(ValueError, match="needs the timing's grid"):
+        train_design(training, params, TrainConfig(steps=1))
+    with pytest.raises(TypeError):
+        train_law(None, None, np.ones(4), steps=1)                      # the options live in TrainConfig
+    with pytest.raises(TypeError, match="config must be a DesignSweepConfig, got Timing"):
+        sweep_designs(ROBOT, CYCLE, None, Timing(0.43, 0.1))
+    assert compilations[0] == 0
 
 
 @pytest.mark.parametrize("kwargs, match", [

@@ -66,7 +66,7 @@ from jaxflex.path import make_path
 from jaxflex.problem import Problem, Timing
 from jaxflex.profiles import PROFILES, make_profile, profile_values, shaped
 from jaxflex.robot import cycle_preset, robot_preset
-from jaxflex.sweep import Case, default_grid, run_sweep, sweep_tables
+from jaxflex.sweep import Case, SweepConfig, default_grid, run_sweep, sweep_tables
 
 QUICK = os.environ.get("JAXFLEX_QUICK", "") == "1"
 OUT = Path(os.environ.get("JAXFLEX_NB_OUT", "results/notebooks")) / "optimize_new_payload"
@@ -110,15 +110,16 @@ print(f"new case: {PAYLOAD:g} kg in {TF:g} s, dwell {DWELL:g} s")
 
 # %%
 if QUICK:
-    res = run_sweep(robot, cycle, [Case(PAYLOAD, TF)], dwell=DWELL, blends=blends, profiles=PROFILES,
-                    grid=grid, with_series=True, second_order=False, timed=False)
+    res = config = SweepConfig(dwell=DWELL, blends=blends, profiles=PROFILES, grid=grid, with_series=True,
+                         second_order=False, timed=False)
+    res = run_sweep(robot, cycle, [Case(PAYLOAD, TF)], config)
     paper = {k: np.asarray(v) for k, v in res.metrics.items()}               # (blend, law, case)
     paper_blends, paper_profiles = res.blends, res.profiles
     dw = paper["dwell_residual_mm"][:, :, 0]
     bi, bj = np.unravel_index(np.argmin(dw), dw.shape)
     blend, best_law = paper_blends[bi], paper_profiles[bj]
     path = make_path(cycle, blend, 0.025)
-    tables = sweep_tables(robot, cycle, [PAYLOAD], blend, blends=paper_blends)
+    tables = sweep_tables(robot, cycle, [PAYLOAD], blend, config)
     ref = {k: v[bi, bj, 0] for k, v in paper.items()}
     torque_bound = paper["max_torque_nm"][paper_blends.index("lame"), paper_profiles.index("poly7"), 0]
     scales = Scales(energy=jnp.asarray([ref["residual_energy"]]),

@@ -47,7 +47,7 @@ from jaxflex.metrics import METRICS, UNITS
 from jaxflex.path import make_path
 from jaxflex.profiles import PROFILES, make_profile, profile_eval
 from jaxflex.robot import cycle_preset, robot_preset
-from jaxflex.sweep import Case, default_grid, run_sweep
+from jaxflex.sweep import Case, SweepConfig, default_grid, run_sweep
 
 QUICK = os.environ.get("JAXFLEX_QUICK", "") == "1"
 OUT = Path(os.environ.get("JAXFLEX_NB_OUT", "results/notebooks")) / "tour"
@@ -112,8 +112,8 @@ if QUICK:
 else:
     grid = None                               # default: ~0.1 ms steps
     second_order = True
-res = run_sweep(robot, cycle, [Case(PAYLOAD, TF)], dwell=DWELL, blends=(BLEND,), profiles=PROFILES,
-                grid=grid, with_series=True, second_order=second_order)
+res = run_sweep(robot, cycle, [Case(PAYLOAD, TF)], SweepConfig(dwell=DWELL, blends=(BLEND,), profiles=PROFILES,
+                                                         grid=grid, with_series=True, second_order=second_order))
 print(f"grid {res.grid}; tables {res.tables_s:.1f} s, compile {res.compile_s:.1f} s, "
       f"run {res.run_s * 1e3:.0f} ms for {len(res.blends) * len(res.profiles)} trajectories")
 

@@ -51,7 +51,7 @@ from jaxflex.experiments.io import fmt, save_figure, table
 from jaxflex.metrics import UNITS
 from jaxflex.profiles import PROFILES
 from jaxflex.robot import cycle_preset, robot_preset
-from jaxflex.sweep import PAPER_CASES, default_grid, run_sweep
+from jaxflex.sweep import PAPER_CASES, SweepConfig, default_grid, run_sweep
 
 QUICK = os.environ.get("JAXFLEX_QUICK", "") == "1"
 OUT = Path(os.environ.get("JAXFLEX_NB_OUT", "results/notebooks")) / "vibration_study"
@@ -92,8 +92,8 @@ print("cases:", ", ".join(f"{c.payload:g} kg in {c.tf:g} s" for c in cases))
 # (blend, law, case).
 
 # %%
-res = run_sweep(robot, cycle, cases, dwell=DWELL, blends=blends, profiles=PROFILES, grid=grid,
-                with_series=True, second_order=second_order)
+res = run_sweep(robot, cycle, cases, SweepConfig(dwell=DWELL, blends=blends, profiles=PROFILES, grid=grid,
+                                            with_series=True, second_order=second_order))
 print(f"{len(res.blends) * len(res.profiles) * len(res.cases)} runs; grid {res.grid}")
 print(f"tables {res.tables_s:.1f} s, rollout compile {res.compile_s:.1f} s, run {res.run_s * 1e3:.0f} ms")
 
