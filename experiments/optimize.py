@@ -364,7 +364,8 @@ def verification(rec: dict, preset: str = "default") -> dict:
     nonlinear model, per payload: "<payload> kg" -> trajectory -> method -> dwell residual [mm]."""
     robot, cycle = robot_preset(preset), cycle_preset(preset)
     trajectories = trajectories_of(rec, cycle)
-    return {f"{m:g} kg": verify_trajectories(robot, cycle, trajectories, m, rec["tf"]) for m in rec["payloads"]}
+    return {f"{m:g} kg": verify_trajectories(Problem(robot, cycle, (m,), Timing(rec["tf"])), trajectories)
+            for m in rec["payloads"]}
 
 
 def verifications(records: list, preset: str = "default") -> list:

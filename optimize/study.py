@@ -50,7 +50,7 @@ import numpy as np
 
 from jaxflex import trees
 from jaxflex import checks
-from jaxflex.blends import BLENDS, DESIGN_BLENDS
+from jaxflex.blends import DESIGN_BLENDS
 from jaxflex.designs import Design, design, design_path
 from jaxflex.engine import LawEvaluator
 from jaxflex.linearized import _robot_list
@@ -59,12 +59,12 @@ from jaxflex.model_sets import ModelId, ModelSet, model_set, models_of, place_fi
 from jaxflex.parallel import Beside
 from jaxflex.path import Cycle, make_path
 from jaxflex.problem import Problem, Timing
-from jaxflex.profiles import PROFILES, make_profile, shaped
+from jaxflex.profiles import make_profile, shaped
 from jaxflex.progress import Progress
 from jaxflex.robot import Robot, check_cycle_reachable
 from jaxflex.simulate import Grid, check_grid
 from jaxflex.uncertainty import Box
-from jaxflex.sweep import default_grid
+from jaxflex.sweep import SweepConfig, default_grid
 from jaxflex.workspace import Workspace, build_workspace, workspace_shapes
 
 from .baselines import ruckig_samples, shaper_profiles
@@ -170,20 +170,26 @@ class PaperSweep(NamedTuple):
     evaluators: dict
 
 
-def paper_sweep(models: ModelSet, cycle: Cycle, tf: float, dwell: float, grid: Grid, *, blends=BLENDS,
-                profiles=PROFILES, progress: bool = False) -> PaperSweep:
-    """Every blend x paper law on the models at motion time tf [s]: one table build per blend and
-    one compiled rollout program (the evaluators') for every law, blend and later evaluation on
-    the same number of models. Same model and metrics as ``jaxflex.sweep.run_sweep``. ``progress``
-    on stderr."""
-    blends, profiles = tuple(blends), tuple(profiles)
+def paper_sweep(models: ModelSet, cycle: Cycle, tf: float, config: SweepConfig) -> PaperSweep:
+    """Every blend x paper law of ``config`` (``jaxflex.sweep.SweepConfig``: its blends, laws, blend
+    parameters, dwell [s], grid, which must be given, and progress on stderr) on the models at motion
+    time tf [s]: one table build per blend and one compiled rollout program (the evaluators') for
+    every law, blend and later evaluation on the same number of models. Same model and metrics as
+    ``jaxflex.sweep.run_sweep`` with that config."""
+    c = config.checked(cycle)
+    if c.grid is None:
+        raise ValueError("paper_sweep needs the config's grid (jaxflex.sweep.default_grid gives the default one)")
+    if not c.second_order:
+        raise ValueError("paper_sweep runs the second-order fast model (the evaluators'): second_order=False "
+                         "is run_sweep's")
+    blends, profiles, dwell, grid, progress = c.blends, c.profiles, c.dwell, c.grid, c.progress
     bar = Progress(f"paper combinations on {len(models.labels)} model(s)", total=len(blends) * len(profiles),
                    unit="combination", enabled=progress)
     evaluators, runs = {}, []
     with bar:
         for b in blends:
             with bar.waiting(f"{b} path tables") if not bar.counting else contextlib.nullcontext():
-                evaluators[b] = LawEvaluator(models, make_path(cycle, b, 0.025), tf, dwell, grid)
+                evaluators[b] = LawEvaluator(models, make_path(cycle, b, c.d, c.e, c.n), tf, dwell, grid)
             runs.append([])
             for p in profiles:
                 with bar.waiting(f"{b}/{p} (compiling the rollout unless cached)") if not bar.counting \
@@ -374,11 +380,13 @@ class StudyConfig:
         return dataclasses.replace(self, box=box)
 
 
-def evaluation_sets(robot: Robot, cycle: Cycle, payloads, tf: float, dwell: float, grid: Grid,
-                    config: StudyConfig) -> tuple[dict, dict]:
-    """(sets, grids): the models every trajectory of a study is evaluated on, set name -> ModelSet
-    (nominal, perturbed, damped; box and richer as ``config`` asks), and the grids of the sets that
-    need another one (the richer model's faster modes may need more squarings of the same steps)."""
+def evaluation_sets(problem: Problem, config: StudyConfig) -> tuple[dict, dict]:
+    """(sets, grids): the models every trajectory of a study of ``problem`` is evaluated on, set name
+    -> ModelSet (nominal, perturbed, damped; box and richer as ``config`` asks), and the grids of the
+    sets that need another one than the problem's (the richer model's faster modes may need more
+    squarings of the same steps)."""
+    robot, cycle, payloads, (tf, dwell, _) = problem
+    grid = problem.grid()
     sets = {
         "nominal": model_set(robot, payloads),
         "perturbed": model_set(robot, payloads, stiffness=PERTURB_E, payload_scale=PERTURB_PAYLOAD),
@@ -415,7 +423,7 @@ def _paper_evaluations(cancelled, robot, cycle, payloads, tf, dwell, grid, confi
     path (the baselines) evaluated: (sets, grids, evaluators set -> {"paper": LawEvaluator} (for a
     free path the nominal set's only, else {}), evaluations set -> candidate -> metrics). Stops early
     when ``cancelled`` is set."""
-    sets, grids = evaluation_sets(robot, cycle, payloads, tf, dwell, grid, config)
+    sets, grids = evaluation_sets(Problem(robot, cycle, tuple(payloads), Timing(tf, dwell, grid)), config)
     evaluators, evaluations = {}, {}
     for k, s in sets.items():
         if cancelled.is_set():
@@ -574,7 +582,7 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
             compile_gradient_ahead(encode(cycle, x0), args, f=f, hot=is_hot(steps))
         workspaces = _workspaces(models, cycle, progress, c.memo)
     nominal = nominal_indices(models, payloads)
-    sweep = paper_sweep(subset(models, nominal), cycle, tf, dwell, grid, progress=progress)
+    sweep = paper_sweep(subset(models, nominal), cycle, tf, SweepConfig(dwell=dwell, grid=grid, progress=progress))
     paper = sweep.metrics                                                       # (B, P, C)
     i, j = best_combination(paper["dwell_residual_mm"])
     blend, law = sweep.blends[i], sweep.profiles[j]
@@ -805,21 +813,24 @@ def _dwell(aux):
     return aux["metrics"]["dwell_residual_mm"]
 
 
-def verify(robot: Robot, cycle: Cycle, trajectories: dict, payload: float, tf: float, *, dwell: float = 0.1,
-           method: str = "exprb3", full_dt: float | None = None) -> dict:
-    """Independent check of the residual claims: every trajectory (name -> (Path, Profile)) is
-    re-simulated with the fast model at the default step, at a quarter of it, and with the full
-    nonlinear model (``jaxflex.reference.reference_rollout`` with ``method`` at ``full_dt`` [s], its
-    default step if None). Returns name -> {method: dwell residual [mm]}."""
+def verify(problem: Problem, trajectories: dict, method: str = "exprb3", full_dt: float | None = None) -> dict:
+    """Independent check of the residual claims on the problem's robot with its one payload [kg],
+    at its tf and dwell [s]: every trajectory (name -> (Path, Profile)) is re-simulated with the
+    fast model on the timing's grid (None: the default grid), at a quarter of its step, and with the
+    full nonlinear model (``jaxflex.reference.reference_rollout`` with ``method`` at ``full_dt``
+    [s], its default step if None). Returns name -> {method: dwell residual [mm]}."""
     from jaxflex.metrics import metrics
     from jaxflex.reference import DEFAULT_DT, METHODS, reference_rollout
 
-    payload = checks.nonnegative("payload", payload, "kg")
+    robot, cycle, payloads, (tf, dwell, grid) = problem
+    if len(payloads) != 1:
+        raise ValueError(f"payloads: verify takes one payload, got {list(payloads)}")
+    payload = checks.nonnegative("payload", payloads[0], "kg")
     checks.one_of("full-model method", method, METHODS)
     full_dt = DEFAULT_DT[method] if full_dt is None else full_dt
     tf, dwell, full_dt = (checks.positive(k, v, "s") for k, v in (("tf", tf), ("dwell", dwell), ("full_dt", full_dt)))
     r = robot.replace(payload=payload)
-    g = default_grid(robot, [tf], dwell)
+    g = grid if grid is not None else default_grid(robot, [tf], dwell)
     fine = Grid(coarse=4 * g.coarse, fine=g.fine, dwell_steps=4 * g.dwell_steps, squarings=g.squarings)
     models = model_set(robot, [payload])
     out = {name: {} for name in trajectories}
