@@ -29,7 +29,7 @@ from jaxflex.problem import Timing
 from jaxflex.profiles import shaped
 from jaxflex.progress import Progress
 from jaxflex.robot import Robot
-from jaxflex.simulate import Grid, Series, check_grid, motion_samples, rollout
+from jaxflex.simulate import Grid, Series, motion_samples, rollout
 from jaxflex.sweep import default_grid
 from jaxflex.workspace import Workspace, workspace_tables
 
@@ -119,12 +119,10 @@ def sweep_designs(robot: Robot, cycle: Cycle, xs: Design,
     inconsistent shapes and FloatingPointError naming the first design with a non-finite metric."""
     if not isinstance(config, DesignSweepConfig):
         raise TypeError(f"config must be a DesignSweepConfig, got {type(config).__name__}")
-    tf, dwell = checks.positive("tf", config.timing.tf, "s"), checks.positive("dwell", config.timing.dwell, "s")
+    tf, dwell, grid = config.timing.checked()
     blend, order, second_order, chunk, devices = (config.blend, config.order, config.second_order, config.chunk,
                                                   config.devices)
     blend = checks.one_of("blend", blend, ALL_BLENDS)
-    if config.timing.grid is not None:
-        check_grid(config.timing.grid)
     if chunk is not None:
         chunk = checks.count("chunk", chunk)
     leaves = [jnp.asarray(v, dtype=float) for v in xs]
@@ -141,7 +139,7 @@ def sweep_designs(robot: Robot, cycle: Cycle, xs: Design,
             shaped(host[3][i], order)
         except ValueError as err:
             raise ValueError(f"design {i}: {err}") from None
-    grid = config.timing.grid if config.timing.grid is not None else default_grid(robot, [tf], dwell)
+    grid = grid if grid is not None else default_grid(robot, [tf], dwell)
     devices = list(jax.local_devices() if devices is None else devices)
     chunk = chunk or 4 * len(devices)
     if chunk % len(devices):

@@ -822,15 +822,16 @@ def verify(problem: Problem, trajectories: dict, method: str = "exprb3", full_dt
     from jaxflex.metrics import metrics
     from jaxflex.reference import DEFAULT_DT, METHODS, reference_rollout
 
-    robot, cycle, payloads, (tf, dwell, grid) = problem
+    robot, cycle, payloads, _ = problem
     if len(payloads) != 1:
         raise ValueError(f"payloads: verify takes one payload, got {list(payloads)}")
     payload = checks.nonnegative("payload", payloads[0], "kg")
     checks.one_of("full-model method", method, METHODS)
-    full_dt = DEFAULT_DT[method] if full_dt is None else full_dt
-    tf, dwell, full_dt = (checks.positive(k, v, "s") for k, v in (("tf", tf), ("dwell", dwell), ("full_dt", full_dt)))
+    timing = problem.timing.checked()
+    tf, dwell = timing.tf, timing.dwell
+    full_dt = checks.positive("full_dt", DEFAULT_DT[method] if full_dt is None else full_dt, "s")
     r = robot.replace(payload=payload)
-    g = grid if grid is not None else default_grid(robot, [tf], dwell)
+    g = problem._replace(timing=timing).grid()
     fine = Grid(coarse=4 * g.coarse, fine=g.fine, dwell_steps=4 * g.dwell_steps, squarings=g.squarings)
     models = model_set(robot, [payload])
     out = {name: {} for name in trajectories}
