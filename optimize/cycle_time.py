@@ -35,8 +35,8 @@ from jaxflex.model_sets import model_set
 from jaxflex.workspace import workspace_shapes
 from .loop import compile_gradient_ahead, is_hot
 from .objective import decode, encode
-from .study import (PERTURB_E, PERTURB_PAYLOAD, StudyConfig, _abstract_scales, _check_problem, _workspaces,
-                    check_study_args, design_objective, nominal_indices, reference_scales, start_design,
+from .study import (PERTURB_E, PERTURB_PAYLOAD, StudyConfig, _abstract_scales, _workspaces, checked_study,
+                    design_objective, nominal_indices, reference_scales, start_design,
                     torque_bounds, Training, train_design, training_models, training_weights)
 
 TORQUE_TOL = 1.01   # a design counts when its peak torque is within 1 % of the bound (soft penalty)
@@ -76,16 +76,12 @@ def cycle_time_study(problem: Problem, tfs: Sequence[float] = (0.43, 0.40, 0.37,
     the reference motion time tf_ref [s]; ``tfs`` [s] are visited in descending order. Uses
     ``config``'s steps, learning rate, law coefficients, training set and progress."""
     started = time.time()
-    _check_problem("cycle_time_study", problem, config)
-    robot, cycle = problem.robot, problem.cycle
-    if len(problem.payloads) != 1:
+    if isinstance(problem, Problem) and len(problem.payloads) != 1:
         raise ValueError(f"payloads: the cycle-time study takes one payload, got {list(problem.payloads)}")
-    payload, tf_ref, dwell = problem.payloads[0], problem.timing.tf, problem.timing.dwell
-    n_coef, steps, learning_rate, train, progress = (config.n_coef, config.steps, config.learning_rate,
-                                                     config.train, config.progress)
-    (payload,), tf_ref, dwell = check_study_args(robot, cycle, [payload], tf_ref, dwell, n_coef, steps,
-                                                 learning_rate, train)
-    config = config.checked()
+    problem, config = checked_study("cycle_time_study", problem, config)
+    robot, cycle = problem.robot, problem.cycle
+    (payload,), (tf_ref, dwell, _) = problem.payloads, problem.timing
+    n_coef, steps, train, progress = config.n_coef, config.steps, config.train, config.progress
     tfs = np.asarray(checks.positives("tfs", tfs, "s"))
     if tf_ref not in tfs:
         tfs = np.append(tfs, tf_ref)

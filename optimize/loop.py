@@ -95,13 +95,13 @@ def _code_digest() -> str:
 
 def fingerprint(f, params0, args, config: "OptimizerConfig") -> str:
     """A digest of everything that determines ``minimize(f, params0, args, config)``'s result: the
-    objective (a frozen dataclass instance such as ``study.DesignObjective``: its class and fields),
+    objective (a frozen dataclass instance such as ``objective.DesignObjective``: its class and fields),
     the start, every array of ``args`` (values, shapes and dtypes), the schedule and stopping rules,
     the monitor's name (its numbers are in the history) and the code (``_code_digest``). Raises
     ValueError for another kind of objective (a function's name does not say what it computes)."""
     if not (dataclasses.is_dataclass(f) and not isinstance(f, type) and f.__dataclass_params__.frozen):
         raise ValueError("a memo of optimizations needs an objective that a frozen dataclass instance describes "
-                         f"(e.g. jaxflex.optimize.study.DesignObjective), got {f!r}")
+                         f"(e.g. jaxflex.optimize.objective.DesignObjective), got {f!r}")
     h = hashlib.sha1(_code_digest().encode())
     c = config
     h.update(repr((type(f).__module__, type(f).__qualname__, f, c.steps, float(c.learning_rate), c.decay,
@@ -175,7 +175,7 @@ def is_hot(steps: int) -> bool:
 def _staged(f, mode: str) -> bool:
     """Whether f computes its own reverse-mode value and gradient: an objective with a true
     ``staged_gradient`` attribute provides ``value_and_grad(params, args, hot=)`` and
-    ``compile_ahead(params, args, hot=)`` (``study.DesignObjective``: ``optimize.staged``)."""
+    ``compile_ahead(params, args, hot=)`` (``objective.DesignObjective``: ``optimize.staged``)."""
     return mode == "reverse" and bool(getattr(f, "staged_gradient", False))
 
 

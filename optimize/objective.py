@@ -28,6 +28,7 @@ is fixed.
 """
 from __future__ import annotations
 
+import dataclasses
 from typing import NamedTuple
 
 import jax
@@ -148,27 +149,58 @@ def over_models(fn, *batched):
     return jax.lax.map(lambda xs: remat(*xs), batched)
 
 
-def objective_terms(params: Params, robots: Robot, cycle: Cycle, tf, dwell, grid: Grid, *,
-                    blend: str = "lame", order: int = 3, second_order: bool = True,
-                    workspaces: Workspace | None = None) -> dict:
-    """Per-model terms for a batch of K robots (leaves with a leading axis K, e.g. payloads);
-    ``workspaces``: their workspace tables stacked alike (``jaxflex.workspace``), or None to build
-    each path's tables from the model."""
-    x = decode(cycle, params)
-    one = lambda robot, ws: series_terms(design_rollout(robot, cycle, x, tf, dwell, grid, blend=blend, order=order,
-                                                  second_order=second_order, workspace=ws))
-    return over_models(one, robots, workspaces)
+BLEND_FAMILY = "smoothstep"         # the optimized design's default blend family (d, e per corner; G4 joins)
 
 
-def objective(params: Params, robots: Robot, cycle: Cycle, tf, dwell, grid: Grid, scales: Scales, *,
-              blend: str = "lame", order: int = 3, torque_weight: float = TORQUE_WEIGHT,
-              second_order: bool = True, workspaces: Workspace | None = None, power: float = 1.0):
-    """Design objective J (path and law; the tables are rebuilt from the decoded path, from the
-    model or from the models' ``workspaces``) and the per-model terms. ``robots``: K models
-    stacked (``stack_robots``)."""
-    t = objective_terms(params, robots, cycle, tf, dwell, grid, blend=blend, order=order,
-                        second_order=second_order, workspaces=workspaces)
-    return combine(t, scales, torque_weight, power), t
+@dataclasses.dataclass(frozen=True)
+class DesignObjective:
+    """The design objective J (path and law, module docstring) for one grid and static
+    configuration: a hashable value, so equal configurations are one static argument of the
+    optimizer's compiled program (it compiles once for every tf, payload set and scale of the same
+    shapes).
+
+    Called as f(params, robots, cycle, tf, dwell, scales, workspaces) -> (J, per-model terms):
+    ``robots`` K models stacked (``stack_robots``), tf and dwell [s], ``scales`` (``Scales``, one per
+    model), ``workspaces`` the models' workspace tables stacked alike (``jaxflex.workspace``) or None
+    to build each path's tables from the model. ``blend``: the design's blend family; ``order``: the
+    shaped law's end-factor order; ``power``: the order of the power mean over the models
+    (``combine``).
+
+    ``staged_gradient`` (default): the optimizer's reverse-mode value and gradient
+    (``loop.value_and_grad``) run model by model as a chain of small programs
+    (``optimize.staged``), the same values to round-off; False: ``jax.value_and_grad`` of the call
+    as one program."""
+
+    grid: Grid
+    blend: str = BLEND_FAMILY
+    order: int = 3
+    torque_weight: float = TORQUE_WEIGHT
+    power: float = 1.0
+    staged_gradient: bool = True
+
+    def terms(self, params: Params, robots: Robot, cycle: Cycle, tf, dwell,
+              workspaces: Workspace | None = None) -> dict:
+        """The per-model terms (``series_terms``, leaves with the leading axis K) of the decoded
+        design on the second-order fast model."""
+        x = decode(cycle, params)
+        one = lambda robot, ws: series_terms(design_rollout(robot, cycle, x, tf, dwell, self.grid, blend=self.blend,
+                                                            order=self.order, second_order=True, workspace=ws))
+        return over_models(one, robots, workspaces)
+
+    def __call__(self, params: Params, robots: Robot, cycle: Cycle, tf, dwell, scales: Scales,
+                 workspaces: Workspace | None = None):
+        t = self.terms(params, robots, cycle, tf, dwell, workspaces)
+        return combine(t, scales, self.torque_weight, self.power), t
+
+    def value_and_grad(self, params, args, *, hot: bool = False):
+        """((J, terms), gradient) through the staged programs (``optimize.staged.value_and_grad``)."""
+        from . import staged        # staged builds on this module's terms
+        return staged.value_and_grad(self, params, args, hot=hot)
+
+    def compile_ahead(self, params, args, *, hot: bool = False):
+        """Start compiling the staged programs for these shapes (``optimize.staged.compile_ahead``)."""
+        from . import staged
+        return staged.compile_ahead(self, params, args, hot=hot)
 
 
 def stack_robots(robots) -> Robot:
@@ -176,12 +208,24 @@ def stack_robots(robots) -> Robot:
     return trees.stack(robots, dtype=float)
 
 
-def law_objective(coef, tables, length, tf, dwell, grid: Grid, scales: Scales, *, order: int = 3,
-                  torque_weight: float = TORQUE_WEIGHT, robots: Robot | None = None, power: float = 1.0):
-    """Objective J of the motion law alone on a fixed path: ``tables`` stacked over K models (leading
-    axis K, e.g. from ``jax.vmap(build_tables, (0, None))``), path length [m]; ``robots`` the K
-    models stacked (``stack_robots``) for the second-order fast model, None for the first-order one.
-    Cheaper than ``objective``: the tables do not depend on the law."""
-    samples = motion_samples(length, shaped(coef, order), tf, grid)
-    t = over_models(lambda tab, robot: series_terms(rollout(tab, samples, tf, dwell, grid, robot)), tables, robots)
-    return combine(t, scales, torque_weight, power), t
+@dataclasses.dataclass(frozen=True)
+class LawObjective:
+    """Objective J of the motion law alone on a fixed path, for one grid: cheaper than
+    ``DesignObjective``, as the tables do not depend on the law.
+
+    Called as f(coef, tables, length, tf, dwell, scales, robots) -> (J, per-model terms):
+    ``coef`` (m + 1,) the shaped law's coefficients, ``tables`` stacked over K models (leading axis
+    K, e.g. from ``jaxflex.engine.LawEvaluator`` or ``jaxflex.sweep.sweep_tables``), the path
+    ``length`` [m], tf and dwell [s], ``scales`` (``Scales``), ``robots`` the K models stacked
+    (``stack_robots``) for the second-order fast model, or None for the first-order one."""
+
+    grid: Grid
+    order: int = 3
+    torque_weight: float = TORQUE_WEIGHT
+    power: float = 1.0
+
+    def __call__(self, coef, tables, length, tf, dwell, scales: Scales, robots: Robot | None = None):
+        samples = motion_samples(length, shaped(coef, self.order), tf, self.grid)
+        t = over_models(lambda tab, robot: series_terms(rollout(tab, samples, tf, dwell, self.grid, robot)),
+                        tables, robots)
+        return combine(t, scales, self.torque_weight, self.power), t

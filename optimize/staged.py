@@ -1,6 +1,6 @@
 """The design objective's value and gradient as a chain of small compiled programs, model by model.
 
-``loop.value_and_grad`` (reverse mode) on ``study.DesignObjective`` runs ``value_and_grad`` here
+``loop.value_and_grad`` (reverse mode) on ``objective.DesignObjective`` runs ``value_and_grad`` here
 instead of differentiating the whole objective over the K training models as one program. The
 value and the gradient are the same to round-off. The compilation is shorter, and the same
 programs serve any number of models, any tf and any scales of the same grid.
@@ -222,7 +222,7 @@ def value(f, params, args, *, hot: bool = False):
 
 
 def value_and_grad(f, params, args, *, hot: bool = False):
-    """((J, per-model terms), dJ/dparams) of the design objective ``f`` (``study.DesignObjective``)
+    """((J, per-model terms), dJ/dparams) of the design objective ``f`` (``objective.DesignObjective``)
     at ``params`` with its ``args`` (``study.design_objective``), as ``jax.value_and_grad(f,
     has_aux=True)`` gives them, through the staged programs (module docstring)."""
     v, terms, (d_residual, d_torque), grads = _run(f, params, args, hot, gradient=True)

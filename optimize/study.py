@@ -68,38 +68,19 @@ from jaxflex.sweep import SweepConfig, default_grid
 from jaxflex.workspace import Workspace, build_workspace, workspace_shapes
 
 from .baselines import ruckig_samples, shaper_profiles
-from . import staged
 from .loop import OptimizerConfig, OptResult, compile_gradient_ahead, is_hot, minimize
-from .objective import TORQUE_WEIGHT, Params, Scales, decode, encode, law_objective, objective
+from .objective import BLEND_FAMILY, DesignObjective, LawObjective, Params, Scales, decode, encode
 
 PERTURB_E = (0.95, 1.0, 1.05)
 PERTURB_PAYLOAD = (0.9, 1.0, 1.1)
 SPANNING = ((1.0, 1.0), (0.95, 0.9), (0.95, 1.1), (1.05, 0.9), (1.05, 1.1))   # (E factor, payload factor)
 DAMPING_RATIO = 0.01
 TRAINING_SETS = ("box", "nominal", "spanning", "perturbed")
-BLEND_FAMILY = "smoothstep"         # the optimized design's default blend family (d, e per corner; G4 joins)
 START_E = {"smoothstep": 0.08}      # start: e [m] per family (default 25 mm, the paper's); the smoothstep
                                     # blend needs a long horizontal part to spread its turn (issue 21)
 START_D_FRACTION = 0.98             # start: d = 0.98 h (d = h is the open end of the decoded range)
 ROBUST_POWER = 8.0                  # a power mean of this order over the training models is a smooth worst
                                     # case (StudyConfig(robust_power=ROBUST_POWER, absolute=True), SPEC 6)
-
-
-def check_study_args(robot: Robot, cycle: Cycle, payloads, tf, dwell, n_coef, steps, learning_rate,
-                     train) -> tuple:
-    """Eager validation of an optimization study's arguments (SPEC 8: before anything compiles);
-    returns (payloads tuple, tf, dwell) as floats. Raises ValueError naming the argument."""
-    payloads = checks.nonnegatives("payloads", payloads, "kg")
-    if any(m <= 0 for m in payloads):
-        raise ValueError(f"payloads must be > 0 kg for an optimization study (the torque bound and the "
-                         f"perturbed models scale with them), got {list(payloads)}")
-    tf, dwell = checks.positive("tf", tf, "s"), checks.positive("dwell", dwell, "s")
-    checks.count("n_coef", n_coef, 1)
-    checks.count("steps", steps, 0)
-    checks.positive("learning_rate", learning_rate)
-    checks.one_of("training set", train, TRAINING_SETS)
-    check_cycle_reachable(robot, cycle)
-    return payloads, tf, dwell
 
 
 def training_models(robot: Robot, payloads: Sequence[float], kind: str = "spanning", *, box: Box = Box(),
@@ -402,28 +383,32 @@ def evaluation_sets(problem: Problem, config: StudyConfig) -> tuple[dict, dict]:
     return sets, grids
 
 
-def _baselines(cancelled, robot, cycle, payloads, tf, dwell, grid, config, path, blend, law, ruckig_candidate):
-    """The baselines on the best paper path ``path`` (blend / law: the best paper combination) and
+def _baselines(cancelled, problem: Problem, config, path, best: tuple, ruckig_candidate):
+    """The baselines of ``problem`` (its timing's grid given) on the best paper path ``path`` (``best``:
+    the best paper combination's (blend, law)) and
     their evaluations: (freqs, candidates, sets, grids, evaluators, evaluations), freqs the first
     locked-motor mode at the place pose [Hz] per payload, candidates name -> Candidate (the best
     law, its input-shaped versions at the first payload's mode, then ``ruckig_candidate`` (name,
     Candidate) unless None), the rest as ``_paper_evaluations``. None when ``cancelled`` is set."""
+    robot, cycle, payloads, (tf, _, _) = problem
+    blend, law = best
     freqs = tuple(place_first_mode_hz(robot.replace(payload=m), cycle) for m in payloads)
     candidates = {f"{blend}/{law} (best paper)": Candidate("paper", make_profile(law))}
     for p in shaper_profiles(law, freqs[0], tf):
         candidates[f"{blend}/{p.name}"] = Candidate("paper", p)
     if ruckig_candidate is not None:
         candidates[ruckig_candidate[0]] = ruckig_candidate[1]
-    out = _paper_evaluations(cancelled, robot, cycle, payloads, tf, dwell, grid, config, path, candidates)
+    out = _paper_evaluations(cancelled, problem, config, path, candidates)
     return None if out is None else (freqs, candidates) + out
 
 
-def _paper_evaluations(cancelled, robot, cycle, payloads, tf, dwell, grid, config, path, candidates):
-    """The evaluation sets, the best paper path's evaluators on them and every candidate on that
+def _paper_evaluations(cancelled, problem: Problem, config, path, candidates):
+    """The evaluation sets of ``problem`` (its timing's grid given), the best paper path's evaluators on them and every candidate on that
     path (the baselines) evaluated: (sets, grids, evaluators set -> {"paper": LawEvaluator} (for a
     free path the nominal set's only, else {}), evaluations set -> candidate -> metrics). Stops early
     when ``cancelled`` is set."""
-    sets, grids = evaluation_sets(Problem(robot, cycle, tuple(payloads), Timing(tf, dwell, grid)), config)
+    sets, grids = evaluation_sets(problem, config)
+    tf, dwell, grid = problem.timing
     evaluators, evaluations = {}, {}
     for k, s in sets.items():
         if cancelled.is_set():
@@ -542,29 +527,41 @@ def _load_workspace(file: pathlib.Path, shapes: Workspace) -> Workspace | None:
     return jax.tree_util.tree_unflatten(treedef, arrays)
 
 
-def _check_problem(name: str, problem, config) -> None:
+def checked_study(name: str, problem: Problem, config: StudyConfig) -> tuple[Problem, StudyConfig]:
+    """Eager validation of a study's ``problem`` and ``config`` for the entry point ``name`` (SPEC 8:
+    before anything compiles): (the problem with its payloads a tuple and tf, dwell floats, the
+    config with its box checked). Raises TypeError for other types, ValueError naming a bad field."""
     if not isinstance(problem, Problem) or not isinstance(config, StudyConfig):
         raise TypeError(f"{name}(problem, config) takes a jaxflex.problem.Problem and a StudyConfig, got "
                         f"{type(problem).__name__} and {type(config).__name__}")
+    payloads = checks.nonnegatives("payloads", problem.payloads, "kg")
+    if any(m <= 0 for m in payloads):
+        raise ValueError(f"payloads must be > 0 kg for an optimization study (the torque bound and the "
+                         f"perturbed models scale with them), got {list(payloads)}")
+    timing = problem.timing.checked()
+    checks.count("n_coef", config.n_coef, 1)
+    checks.count("steps", config.steps, 0)
+    checks.positive("learning_rate", config.learning_rate)
+    checks.one_of("training set", config.train, TRAINING_SETS)
+    check_cycle_reachable(problem.robot, problem.cycle)
+    return problem._replace(payloads=payloads, timing=timing), config.checked()
 
 
 def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> DesignStudy:
     """Run the study (see module docstring) on ``problem`` (robot, cycle, payloads [kg], timing)
     with ``config``. Returns a ``DesignStudy``."""
     started = time.time()
-    _check_problem("optimize_design", problem, config)
+    problem, c = checked_study("optimize_design", problem, config)
     robot, cycle, payloads = problem.robot, problem.cycle, problem.payloads
     tf, dwell, grid = problem.timing
-    c = config
-    n_coef, steps, learning_rate, train, free_path = c.n_coef, c.steps, c.learning_rate, c.train, c.free_path
+    n_coef, steps, train, free_path = c.n_coef, c.steps, c.train, c.free_path
     ruckig, progress, init = c.ruckig, c.progress, c.init
-    payloads, tf, dwell = check_study_args(robot, cycle, payloads, tf, dwell, n_coef, steps, learning_rate, train)
-    c = c.checked()
     if init is not None:
         design_path(cycle, init, c.blend)
         shaped(init.coef)
     grid = grid or default_grid(robot, [tf], dwell)
     check_grid(grid)
+    problem = Problem(robot, cycle, payloads, Timing(tf, dwell, grid))         # checked, with its grid
     # the training models; the paper combinations on their nominal models give the best combination
     # and the scales, poly7-Lamé on every one the torque bounds (``_training_references``)
     models = training_models(robot, payloads, train, box=c.box, points=c.box_points, cycle=cycle)
@@ -576,7 +573,7 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
         # the workspace tables and the paper sweep: its workspace and scales are only shapes until then
         x0 = init if init is not None else start_design(cycle, n_coef, c.blend)
         if steps > 0:
-            shapes = Training(models, cycle, Timing(tf, dwell, grid), _abstract_scales(len(models.ids), weights),
+            shapes = Training(models, cycle, problem.timing, _abstract_scales(len(models.ids), weights),
                               workspace_shapes(models.robots, cycle))
             f, args = design_objective(shapes, train_config)
             compile_gradient_ahead(encode(cycle, x0), args, f=f, hot=is_hot(steps))
@@ -604,12 +601,11 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
         except ImportError as err:
             if progress:
                 print(f"  (Ruckig baseline skipped: {err})", flush=True)
-    beside = Beside(_baselines, robot, cycle, payloads, tf, dwell, grid, c, paths["paper"], blend, law,
-                    ruckig_candidate)
+    beside = Beside(_baselines, problem, c, paths["paper"], (blend, law), ruckig_candidate)
     setup_s = time.time() - started
     with beside:
         if free_path:
-            result = train_design(Training(models, cycle, Timing(tf, dwell, grid), scales, workspaces),
+            result = train_design(Training(models, cycle, problem.timing, scales, workspaces),
                                   encode(cycle, x0), train_config)
             x = jax.tree_util.tree_map(np.asarray, decode(cycle, result.params))
             paths["optimized"] = design_path(cycle, x, c.blend)
@@ -641,55 +637,6 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
     return DesignStudy(payloads, tf, blend, law, x, coef, result, train, models.ids, candidates, paths, evaluations,
                        {k: s.ids for k, s in sets.items()}, paper, torque_bound, limits, freqs, grid,
                        time.time() - started, evaluators, setup_s)
-
-
-@dataclasses.dataclass(frozen=True)
-class DesignObjective:
-    """The design objective (``objective.objective``) for one grid and static configuration: a
-    hashable value, so equal configurations are one static argument of the optimizer's compiled
-    program (it compiles once for every tf, payload set and scale of the same shapes).
-
-    Called as f(params, robots, cycle, tf, dwell, scales, workspaces) -> (J, per-model terms).
-
-    ``staged_gradient`` (default): the optimizer's reverse-mode value and gradient
-    (``loop.value_and_grad``) run model by model as a chain of small programs
-    (``optimize.staged``), the same values to round-off; False: ``jax.value_and_grad`` of the call
-    as one program."""
-
-    grid: Grid
-    blend: str = BLEND_FAMILY
-    order: int = 3
-    torque_weight: float = TORQUE_WEIGHT
-    power: float = 1.0
-    staged_gradient: bool = True
-
-    def __call__(self, params, robots, cycle, tf, dwell, scales, workspaces):
-        return objective(params, robots, cycle, tf, dwell, self.grid, scales, blend=self.blend, order=self.order,
-                         torque_weight=self.torque_weight, workspaces=workspaces, power=self.power)
-
-    def value_and_grad(self, params, args, *, hot: bool = False):
-        """((J, terms), gradient) through the staged programs (``optimize.staged.value_and_grad``)."""
-        return staged.value_and_grad(self, params, args, hot=hot)
-
-    def compile_ahead(self, params, args, *, hot: bool = False):
-        """Start compiling the staged programs for these shapes (``optimize.staged.compile_ahead``)."""
-        return staged.compile_ahead(self, params, args, hot=hot)
-
-
-@dataclasses.dataclass(frozen=True)
-class LawObjective:
-    """The motion-law objective on a fixed path (``objective.law_objective``) for one grid.
-
-    Called as f(coef, tables, length, tf, dwell, scales, robots) -> (J, per-model terms)."""
-
-    grid: Grid
-    order: int = 3
-    torque_weight: float = TORQUE_WEIGHT
-    power: float = 1.0
-
-    def __call__(self, coef, tables, length, tf, dwell, scales, robots):
-        return law_objective(coef, tables, length, tf, dwell, self.grid, scales, order=self.order, robots=robots,
-                             torque_weight=self.torque_weight, power=self.power)
 
 
 class Training(NamedTuple):

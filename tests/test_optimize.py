@@ -8,7 +8,7 @@ import pytest
 
 from jaxflex.designs import design
 from jaxflex.optimize.loop import OptimizerConfig, minimize, value_and_grad_fwd
-from jaxflex.optimize.objective import Params, Scales, decode, encode, objective, stack_robots
+from jaxflex.optimize.objective import DesignObjective, Params, Scales, decode, encode, stack_robots
 from jaxflex.path import make_path
 from jaxflex.robot import cycle_preset, robot_preset
 from jaxflex.sweep import default_grid
@@ -345,7 +345,7 @@ def test_design_gradient_wrt_blend_parameters_matches_central_differences(tables
     grid = default_grid(robot, [TF], DWELL)
     scales = Scales(jnp.full(1, 1e-3), jnp.full(1, 1e-10), jnp.asarray(jnp.inf))
     p0 = encode(cycle, design(d=0.02, e=0.03, n=3.5, coef=[1.0, 1.2, 0.9, 1.0], d2=0.022, e2=0.04, n2=3.2))
-    f = jax.jit(lambda p: objective(p, robots, cycle, TF, DWELL, grid, scales, workspaces=ws))
+    f = jax.jit(lambda p: DesignObjective(grid, blend="lame")(p, robots, cycle, TF, DWELL, scales, ws))
     (_, _), grad = jax.jit(jax.value_and_grad(f, has_aux=True))(p0)
     for i in range(6):
         fd = float(_central(lambda u: f(Params(u, p0.coef))[0], p0.blend, i, 1e-4))

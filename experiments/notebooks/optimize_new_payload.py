@@ -33,7 +33,7 @@
 # The first run compiles the design gradient (several minutes on 2 cores; the CLI's persistent cache
 # keeps it). `JAXFLEX_QUICK=1` runs steps 1-3 with the study's building blocks on a small model (one
 # assumed mode per link, the Lamé blend only, ~2 ms steps, first-order model, nominal model only) and
-# optimizes the law alone on the best paper path (`law_objective`, 10 Adam steps): numbers are not
+# optimizes the law alone on the best paper path (`LawObjective`, 10 Adam steps): numbers are not
 # meaningful, the code path is. `JAXFLEX_NB_OUT`: output directory (default `results/notebooks`;
 # files go to its `optimize_new_payload/` subdirectory).
 
@@ -60,7 +60,7 @@ from jaxflex import plotting
 from jaxflex.blends import BLENDS
 from jaxflex.experiments.io import fmt, save_figure, table
 from jaxflex.optimize.loop import OptimizerConfig, minimize
-from jaxflex.optimize.objective import TORQUE_WEIGHT, Scales, law_objective
+from jaxflex.optimize.objective import LawObjective, Scales
 from jaxflex.optimize.study import StudyConfig, optimize_design
 from jaxflex.path import make_path
 from jaxflex.problem import Problem, Timing
@@ -110,7 +110,7 @@ print(f"new case: {PAYLOAD:g} kg in {TF:g} s, dwell {DWELL:g} s")
 
 # %%
 if QUICK:
-    res = config = SweepConfig(dwell=DWELL, blends=blends, profiles=PROFILES, grid=grid, with_series=True,
+    config = SweepConfig(dwell=DWELL, blends=blends, profiles=PROFILES, grid=grid, with_series=True,
                          second_order=False, timed=False)
     res = run_sweep(robot, cycle, [Case(PAYLOAD, TF)], config)
     paper = {k: np.asarray(v) for k, v in res.metrics.items()}               # (blend, law, case)
@@ -125,8 +125,8 @@ if QUICK:
     scales = Scales(energy=jnp.asarray([ref["residual_energy"]]),
                     dwell_ms=jnp.asarray([(1e-3 * ref["dwell_residual_mm"]) ** 2 / 2]),
                     torque_bound=jnp.asarray([torque_bound]))
-    objective = lambda coef: law_objective(coef, tables, path.length, TF, DWELL, res.grid, scales,
-                                           torque_weight=TORQUE_WEIGHT)     # the study's penalty weight
+    law = LawObjective(res.grid)                    # the study's penalty weight; first-order model (robots None)
+    objective = lambda coef: law(coef, tables, path.length, TF, DWELL, scales)
     result = minimize(objective, jnp.ones(N_COEF),
                       config=OptimizerConfig(steps=STEPS, learning_rate=LEARNING_RATE, patience=40, label="law"))
     coef = np.asarray(result.params)
