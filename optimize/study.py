@@ -385,8 +385,7 @@ def evaluation_sets(problem: Problem, config: StudyConfig) -> tuple[dict, dict]:
 
 def _baselines(cancelled, problem: Problem, config, path, best: tuple, ruckig_candidate):
     """The baselines of ``problem`` (its timing's grid given) on the best paper path ``path`` (``best``:
-    the best paper combination's (blend, law)) and
-    their evaluations: (freqs, candidates, sets, grids, evaluators, evaluations), freqs the first
+    the best paper combination's (blend, law)) and their evaluations: (freqs, candidates, sets, grids, evaluators, evaluations), freqs the first
     locked-motor mode at the place pose [Hz] per payload, candidates name -> Candidate (the best
     law, its input-shaped versions at the first payload's mode, then ``ruckig_candidate`` (name,
     Candidate) unless None), the rest as ``_paper_evaluations``. None when ``cancelled`` is set."""
@@ -403,8 +402,8 @@ def _baselines(cancelled, problem: Problem, config, path, best: tuple, ruckig_ca
 
 
 def _paper_evaluations(cancelled, problem: Problem, config, path, candidates):
-    """The evaluation sets of ``problem`` (its timing's grid given), the best paper path's evaluators on them and every candidate on that
-    path (the baselines) evaluated: (sets, grids, evaluators set -> {"paper": LawEvaluator} (for a
+    """The evaluation sets of ``problem`` (its timing's grid given), the best paper path's evaluators
+    on them and every candidate on that path (the baselines) evaluated: (sets, grids, evaluators set -> {"paper": LawEvaluator} (for a
     free path the nominal set's only, else {}), evaluations set -> candidate -> metrics). Stops early
     when ``cancelled`` is set."""
     sets, grids = evaluation_sets(problem, config)
