@@ -384,11 +384,11 @@ def evaluation_sets(problem: Problem, config: StudyConfig) -> tuple[dict, dict]:
 
 
 def _baselines(cancelled, problem: Problem, config, path, best: tuple, ruckig_candidate):
-    """The baselines of ``problem`` (its timing's grid given) on the best paper path ``path`` (``best``:
-    the best paper combination's (blend, law)) and their evaluations: (freqs, candidates, sets, grids, evaluators, evaluations), freqs the first
-    locked-motor mode at the place pose [Hz] per payload, candidates name -> Candidate (the best
-    law, its input-shaped versions at the first payload's mode, then ``ruckig_candidate`` (name,
-    Candidate) unless None), the rest as ``_paper_evaluations``. None when ``cancelled`` is set."""
+    """The baselines of ``problem`` (its timing's grid given) on the best paper path ``path`` (``best``: the
+    best paper combination's (blend, law)) and their evaluations: (freqs, candidates, sets, grids, evaluators,
+    evaluations), freqs the first locked-motor mode at the place pose [Hz] per payload, candidates name ->
+    Candidate (the best law, its input-shaped versions at the first payload's mode, then ``ruckig_candidate``
+    (name, Candidate) unless None), the rest as ``_paper_evaluations``. None when ``cancelled`` is set."""
     robot, cycle, payloads, (tf, _, _) = problem
     blend, law = best
     freqs = tuple(place_first_mode_hz(robot.replace(payload=m), cycle) for m in payloads)
@@ -402,10 +402,10 @@ def _baselines(cancelled, problem: Problem, config, path, best: tuple, ruckig_ca
 
 
 def _paper_evaluations(cancelled, problem: Problem, config, path, candidates):
-    """The evaluation sets of ``problem`` (its timing's grid given), the best paper path's evaluators
-    on them and every candidate on that path (the baselines) evaluated: (sets, grids, evaluators set -> {"paper": LawEvaluator} (for a
-    free path the nominal set's only, else {}), evaluations set -> candidate -> metrics). Stops early
-    when ``cancelled`` is set."""
+    """The evaluation sets of ``problem`` (its timing's grid given), the best paper path's evaluators on them
+    and every candidate on that path (the baselines) evaluated: (sets, grids, evaluators set -> {"paper":
+    LawEvaluator} (for a free path the nominal set's only, else {}), evaluations set -> candidate -> metrics).
+    Stops early when ``cancelled`` is set."""
     sets, grids = evaluation_sets(problem, config)
     tf, dwell, grid = problem.timing
     evaluators, evaluations = {}, {}
@@ -552,15 +552,13 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
     started = time.time()
     problem, c = checked_study("optimize_design", problem, config)
     robot, cycle, payloads = problem.robot, problem.cycle, problem.payloads
-    tf, dwell, grid = problem.timing
     n_coef, steps, train, free_path = c.n_coef, c.steps, c.train, c.free_path
     ruckig, progress, init = c.ruckig, c.progress, c.init
     if init is not None:
         design_path(cycle, init, c.blend)
         shaped(init.coef)
-    grid = grid or default_grid(robot, [tf], dwell)
-    check_grid(grid)
-    problem = Problem(robot, cycle, payloads, Timing(tf, dwell, grid))         # checked, with its grid
+    problem = problem._replace(timing=problem.timing._replace(grid=problem.grid()))   # its grid, or the default
+    tf, dwell, grid = problem.timing
     # the training models; the paper combinations on their nominal models give the best combination
     # and the scales, poly7-Lamé on every one the torque bounds (``_training_references``)
     models = training_models(robot, payloads, train, box=c.box, points=c.box_points, cycle=cycle)
