@@ -17,7 +17,7 @@ from jaxflex import checks
 from jaxflex.path import make_path
 from jaxflex.robot import cycle_preset, robot_preset
 from jaxflex.sweep import PAPER_CASES, SweepConfig, default_grid, run_sweep
-from jaxflex.workspace import build_workspace
+from jaxflex.tables import build_workspaces
 
 from .io import provenance, write_json
 
@@ -61,18 +61,19 @@ def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwe
       of both corners) and the 6 law coefficients, the linearization tables rebuilt inside the
       differentiated function from the workspace tables (their build, once per model, is timed
       apart, compilation included), the objective alone (forward) for the ratio, and the time of
-      each of the gradient's programs run alone (``stages_s``, ``optimize.staged.stage_times``);
+      each of the gradient's programs run alone (``stages_s``, ``optimize.staged.Staged.stage_times``);
     - ``law`` (not with ``quick``): the same for the 6 coefficients of a shaped law on the Lamé path
       (tables fixed);
     - ``design_box`` (not with ``quick``): the design gradient of the studies, over the 9 models of
       the perturbation box (``--train box``), with its XLA temporary memory: the largest buffer set
       of a study.
-    Compile times are those of the program alone (``compile_gradient_ahead``)."""
+    Compile times are those of the programs alone (the strategy's ``compile_ahead``)."""
     from jaxflex.designs import design
-    from jaxflex.optimize import staged
-    from jaxflex.optimize.objective import encode
     from jaxflex.engine import LawEvaluator
-    from jaxflex.optimize.study import (StudyConfig, Training, design_objective, law_objective_args, training_models,
+    from jaxflex.optimize.gradient import OneProgram
+    from jaxflex.optimize.objective import encode
+    from jaxflex.optimize.staged import Staged
+    from jaxflex.optimize.study import (StudyConfig, Training, design_objective, law_objective, training_models,
                                         training_weights)
     from jaxflex.problem import Timing
 
@@ -85,39 +86,37 @@ def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwe
     scales = _scales(1, jnp.asarray(training_weights("nominal", 1)))
     coef = jnp.asarray([1.0, 1.2, 0.9, 1.0, 1.1, 0.95])
     t0 = time.perf_counter()
-    ws = jax.block_until_ready(build_workspace(models.robots, cycle))
+    ws = jax.block_until_ready(build_workspaces(models.robots, cycle))
     ws_s = time.perf_counter() - t0
     timing = Timing(tf, dwell, grid)
-    f, args = design_objective(Training(models, cycle, timing, scales, ws), c.train_config("bench"))
+    f = design_objective(Training(models, cycle, timing, scales, ws), c.train_config("bench"))
     params = encode(cycle, design(0.0245, 0.03, 3.2, coef, e2=0.035, n2=3.4))
-    out = {"design": _time_value_and_grad(f, params, args, repeats, not quick, hot=not quick),
+    build = "quick" if quick else "fast"
+    staged = Staged(build=build)
+    out = {"design": _time_value_and_grad(f, params, staged, repeats, not quick),
            "steps": grid.steps + grid.dwell_steps}
     out["design"]["workspace_build_s"] = ws_s
-    out["design"]["stages_s"] = staged.stage_times(f, params, args, hot=not quick, repeats=repeats)
+    out["design"]["stages_s"] = staged.stage_times(f, params, repeats=repeats)
     if not quick:
         path = make_path(cycle, "lame", 0.025)
-        f_law, args_law = law_objective_args(LawEvaluator(models, path, tf, dwell, grid), scales,
-                                             c.train_config("bench"))
-        out["law"] = _time_value_and_grad(f_law, coef, args_law, repeats, True, hot=True)
+        f_law = law_objective(LawEvaluator(models, path, tf, dwell, grid), scales, c.train_config("bench"))
+        out["law"] = _time_value_and_grad(f_law, coef, OneProgram(build="fast"), repeats, True)
         box = training_models(robot, [payload], "box")
         k = len(box.ids)
-        f_box, args_box = design_objective(Training(box, cycle, timing, _scales(k, None),
-                                                    build_workspace(box.robots, cycle)), c.train_config("bench"))
-        out["design_box"] = _time_value_and_grad(f_box, params, args_box, repeats, False, hot=True)
+        f_box = design_objective(Training(box, cycle, timing, _scales(k, None), build_workspaces(box.robots, cycle)),
+                                 c.train_config("bench"))
+        out["design_box"] = _time_value_and_grad(f_box, params, Staged(build="fast"), repeats, False)
         out["design_box"]["models"] = k
     return out
 
 
-def _time_value_and_grad(f, params, args, repeats: int, forward: bool, hot: bool) -> dict:
-    """Compile and run times of the optimizer's value and gradient: ``hot``, the program a long
-    optimization runs (``loop.is_hot``); else the one of a few steps (the quick bench shares it with
-    a smoke run's optimizer)."""
-    from jaxflex.optimize.loop import compile_gradient_ahead, value_and_grad
-
+def _time_value_and_grad(f, params, gradient, repeats: int, forward: bool) -> dict:
+    """Compile and run times of the optimizer's value and gradient as the strategy ``gradient``
+    computes it (its build "fast": what a long optimization runs; "quick": a smoke run's)."""
     t0 = time.perf_counter()
-    program = compile_gradient_ahead(params, args, f=f, hot=hot).result()
+    program = gradient.compile_ahead(f, params).result()
     compile_s = time.perf_counter() - t0
-    run = _median_time(lambda p: value_and_grad(p, args, f=f, hot=hot), params, repeats=repeats)
+    run = _median_time(lambda p: gradient.value_and_grad(f, p), params, repeats=repeats)
     # the staged design gradient is several programs (``optimize.staged``): the largest one's memory
     mems = [p.memory_analysis() for p in (program if isinstance(program, list) else [program])]
     temps = [m.temp_size_in_bytes for m in mems if m is not None]
@@ -125,7 +124,7 @@ def _time_value_and_grad(f, params, args, repeats: int, forward: bool, hot: bool
            "grad_compile_s": compile_s, "grad_run_s": run,
            "grad_temp_gib": max(temps) / 2**30 if temps else None}
     if forward:
-        fwd = jax.jit(lambda p: f(p, *args)[0])
+        fwd = jax.jit(lambda p: f(p)[0])
         first, run_f, _ = _time_first_and_median(fwd, params, repeats=repeats)
         rec.update(forward_compile_s=max(first - run_f, 0.0), forward_run_s=run_f, grad_over_forward=run / run_f)
     return rec

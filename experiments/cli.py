@@ -165,11 +165,11 @@ def _enable_compilation_cache(jax) -> None:
 
 def main(argv=None) -> int:
     """Console entry point: parse ``argv`` (default: sys.argv), enable float64, the persistent
-    compilation cache and the heap trimming (``jaxflex.heap``), run the command; returns the exit
+    compilation cache and the heap trimming (``jaxflex.runtime.heap``), run the command; returns the exit
     status (2 on bad input)."""
     import jax
 
-    from jaxflex import heap
+    from jaxflex.runtime import heap
 
     heap.start_trimming()
     jax.config.update("jax_enable_x64", True)

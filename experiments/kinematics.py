@@ -15,7 +15,8 @@ from jaxflex.blends import BLENDS, blend_frame, make_blend
 from jaxflex.profiles import PROFILES, make_profile, profile_eval
 from jaxflex.robot import cycle_preset, robot_preset
 from jaxflex.spectral import welch
-from jaxflex.trajectory import sample_combinations, time_grid
+from jaxflex.combinations import sample_combinations
+from jaxflex.trajectory import time_grid
 
 from . import paper_data
 from .io import fmt, pct, provenance, rel_diff, save_figure, table, write_json

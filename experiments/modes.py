@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxflex import checks
-from jaxflex.model import modes_at_point
+from jaxflex.frequencies import modes_at_point
 from jaxflex.path import make_path, path_frame
 from jaxflex.robot import check_cycle_reachable, cycle_preset, robot_preset
 

@@ -327,9 +327,9 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, out=None, verify=False, 
             bar.update(note="box_residuals.png")
     bar.close("done")
     if verify:
-        from jaxflex.compiled import release_compiled
+        from jaxflex.runtime.compiled import release_compiled
 
-        release_compiled()          # the study's programs are done with (memory mappings, jaxflex.compiled)
+        release_compiled()          # the study's programs are done with (memory mappings, jaxflex.runtime.compiled)
         rec["verification"] = verification(rec, preset)
     if out:
         write_json(out / "optimize.json", rec)

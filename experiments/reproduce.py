@@ -15,7 +15,7 @@ import numpy as np
 from . import convergence, kinematics, modes, vibration
 from . import vibration as vibration_study
 from jaxflex import progress
-from jaxflex.compiled import release_compiled, release_if_crowded, run_isolated
+from jaxflex.runtime.compiled import release_compiled, release_if_crowded, run_isolated
 
 from .io import provenance, resumable, table, write_json, write_text
 
@@ -53,7 +53,7 @@ def run(out: str = "results", quick: bool = False, vibration: bool = True, optim
                              make_figures=preset == "default")
         results[f"kinematics_{preset}"] = res
     sections.append(_kinematics_section(results, fig_dir, out))
-    # between sections 1 to 4: bounded memory mappings (jaxflex.compiled); the compiled programs stay
+    # between sections 1 to 4: bounded memory mappings (jaxflex.runtime.compiled); the compiled programs stay
     # while the process holds less than half its mapping limit (the later sections run many of them
     # again: the engine's rollouts, the coefficient program; about 24 thousand mappings and 2.3 GB
     # resident at the end of section 4, 2026-11-27)
@@ -168,7 +168,7 @@ def _optimization(out: Path, quick: bool, key: dict, vib: dict | None = None) ->
 
     steps = 2 if quick else StudyConfig.steps
     # Full runs give each study a process of its own: for peak memory, no longer for the mapping limit
-    # (jaxflex.compiled). The compiled programs hold the memory: one study's about 1.3 GB (20.7
+    # (jaxflex.runtime.compiled). The compiled programs hold the memory: one study's about 1.3 GB (20.7
     # thousand mappings; 0.77 GB resident after ``release_compiled``, 2.1 GB before). Cold runs in one
     # process on 2026-11-27 evening, the same results bit for bit: with the programs kept while under
     # half the mapping limit, 19:56 against 20:56 but 4.4 GB resident; released after each study (with
@@ -258,7 +258,8 @@ def richer_sweep(n_modes: int = 3, paper: dict | None = None) -> dict:
     and the first locked frequencies at the place pose [Hz]. ``paper``: the paper model's residuals
     in that layout when they are already computed (``paper_residuals``: the same sweep), else they
     are simulated here."""
-    from jaxflex.model import modes_at_point, richer
+    from jaxflex.frequencies import modes_at_point
+    from jaxflex.model import richer
     from jaxflex.robot import cycle_preset, robot_preset
     from jaxflex.sweep import PAPER_CASES, SweepConfig, run_sweep
 

@@ -12,7 +12,7 @@ import numpy as np
 
 from jaxflex import spectral
 from jaxflex.metrics import METRICS, UNITS
-from jaxflex.model import modes_at_point
+from jaxflex.frequencies import modes_at_point
 from jaxflex.profiles import PROFILES
 from jaxflex.robot import cycle_preset, robot_preset
 from jaxflex.sweep import PAPER_CASES, SweepConfig, run_sweep
@@ -86,7 +86,8 @@ def compute(quick: bool = False) -> dict:
                 peaks = dwell_spectrum(one)
                 spectra[f"{case.payload:g}kg/{b}/{p}"] = {"peaks_hz": peaks, "locked_modes_hz": modes[:4]}
     out["dwell_spectra"] = spectra
-    from jaxflex.trajectory import sample_combinations, time_grid
+    from jaxflex.combinations import sample_combinations
+    from jaxflex.trajectory import time_grid
 
     tf0 = res.cases[0].tf
     tr, _ = sample_combinations(robot, cycle, tf0, time_grid(tf0, 4000), d=0.025, blends=("lame",),

@@ -1,21 +1,23 @@
 """The evaluation engine: every rollout of the library through one set of compiled programs.
 
-A rollout (``simulate.rollout``) of one trajectory on one model is compiled once per grid, model
-order (first or second) and mode counts (the second-order model as three programs run one after
-the other: first pass, remainder, second pass; see ``_first``), and that one set serves every caller: the paper
-sweep, the optimization studies' paper combinations, baselines and evaluations, the cycle-time
-study, the benchmarks. Batches are run one trajectory at a time (on a 2-core CPU a vmapped batch
-was no faster: 24 rollouts took ~1.0 s either way, measured with the single-program rollout), so no batch size ever costs a new compilation,
-from a few threads at once (``jaxflex.parallel``: ~0.7x the time on 2 cores);
-the metrics come from a small program of their own (``metrics.batch_metrics``).
+The engine interprets the stages of ``jaxflex.rollout`` from a trajectory's tables and samples to
+its series as compiled programs (``programs``): for the second-order model one program per stage,
+run one after the other; for the linearized model one program. They are compiled once per grid,
+model order and mode counts, and that one set serves every caller: the paper sweep, the
+optimization studies' paper combinations, baselines and evaluations, the cycle-time study, the
+benchmarks. Batches are run one trajectory at a time, so no batch size ever costs a new
+compilation, from a few threads at once (``jaxflex.runtime.threads``); the metrics come from a small
+program of their own (``batch_metrics``), vmapped over the runs.
 
-The rollout programs are hot programs: they compile with ``jaxflex.compiled.HOT_LOOP`` whatever
-XLA_FLAGS say (LLVM level 1 runs it as fast as level 3 and compiles it sooner).
+The rollout programs are hot programs: they compile with ``jaxflex.runtime.options.HOT_LOOP`` whatever
+XLA_FLAGS say.
 
-``run`` validates nothing: callers check their inputs before building tables (SPEC 8).
+``run`` validates nothing: callers check their inputs before building tables
+(docs/conventions.md#bad-input).
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 from typing import Sequence
 
@@ -23,76 +25,89 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxflex import rollout as rl
 from jaxflex import trees
-from jaxflex.compiled import HOT_LOOP
-from jaxflex.linearized import Tables, _robot_list, path_tables
-from jaxflex.metrics import batch_metrics
+from jaxflex.runtime.options import HOT_LOOP
+from jaxflex.linearized import Tables
+from jaxflex.metrics import metrics
 from jaxflex.model_sets import ModelSet
-from jaxflex.parallel import host_map
+from jaxflex.runtime.threads import host_map
 from jaxflex.path import Path
 from jaxflex.profiles import Profile
 from jaxflex.robot import Robot
-from jaxflex.simulate import (Grid, MotionSamples, Prepared, Series, add_remainders, first_pass, prepare,
-                              remainders, rollout, sample_motion, second_pass)
+from jaxflex.rollout import RolloutModel, RolloutState
+from jaxflex.simulate import Grid, MotionSamples, Series, motion_samples
+from jaxflex.tables import path_tables
 
 
-@functools.partial(jax.jit, static_argnames=("grid",), compiler_options=HOT_LOOP)
-def _linear(tables: Tables, samples: MotionSamples, tf, dwell, grid: Grid):
-    return rollout(tables, samples, tf, dwell, grid)
+def _stage(model: RolloutModel, inputs: RolloutState, stage: rl.Stage) -> RolloutState:
+    """One program of the engine: a stage (or stages composed, ``rollout.compose``) on the state
+    fields it reads, returning the fields it writes."""
+    return rl.restrict(stage.fn(model, inputs), stage.writes)
 
 
-# The second-order rollout runs as three programs: the first pass, the full model's remainder at
-# its sites, the second pass. The same operations as ``simulate.rollout`` (the gradients go through
-# that one function), but inside one program the remainder's thousand-odd small operations cost
-# about twice their own time (a rollout of the default grid, minimum of 40 runs on 2 cores: 36.6 ms
-# of wall time and 54 ms of CPU as one program, 20.7 ms and 29 ms as these three; the same e(t) to
-# 5e-15 relative).
-def first_stage(tables: Tables, samples: MotionSamples, tf, grid: Grid) -> tuple[Prepared, object]:
-    """The second-order rollout's first part: the prepared pass with the first pass's forcing, and
-    the sites (the first pass's states) where the full model's remainder is evaluated."""
-    prep = prepare(tables, samples, tf, grid)
-    forcing, sites = first_pass(tables, prep, samples, grid)
-    return prep._replace(forcing=forcing), sites
+_program = jax.jit(_stage, static_argnames=("stage",), compiler_options=HOT_LOOP)
 
 
-def second_stage(tables: Tables, prep: Prepared, r_all, samples: MotionSamples, tf, dwell, grid: Grid) -> Series:
-    """The second-order rollout's last part: the second pass with the remainders ``r_all``
-    (``simulate.remainders`` at the sites of ``first_stage``) added to the forcing, then the dwell."""
-    return second_pass(tables, prep._replace(forcing=add_remainders(prep.forcing, r_all, grid)), samples, tf,
-                       dwell, grid)
-
-
-_first = jax.jit(first_stage, static_argnames=("grid",), compiler_options=HOT_LOOP)
-_remainders = jax.jit(remainders, compiler_options=HOT_LOOP)
-_second = jax.jit(second_stage, static_argnames=("grid",), compiler_options=HOT_LOOP)
+def programs(second_order: bool) -> tuple[rl.Stage, ...]:
+    """The engine's programs over the stages of a rollout from its tables and samples to its series
+    (``rollout.between("first pass", "last pass")``): the second-order model as one program per
+    stage, because inside one program the remainder's thousand-odd small operations cost about twice
+    their own time; the linearized model, which has no remainder, as one program."""
+    stages = rl.between("first pass", "last pass")
+    return stages if second_order else (rl.compose(stages),)
 
 
 def cache_size() -> int:
     """Executables compiled by the engine's rollout programs in this process (every shape and grid)."""
-    return sum(p._cache_size() for p in (_linear, _first, _remainders, _second))
+    return _program._cache_size()
 
 
 def run(tables: Tables, samples: MotionSamples, tf, dwell, robot: Robot, grid: Grid,
         second_order: bool = True) -> Series:
     """One rollout (motion over [0, tf] [s], dwell [s]) of the model ``robot`` whose path tables are
-    ``tables``, through the shared compiled programs. ``second_order`` (default): the full model's
-    second-order remainder is added (``simulate.rollout``); False: the linearized model."""
-    tf, dwell = jnp.asarray(tf, dtype=float), jnp.asarray(dwell, dtype=float)
-    if not second_order:
-        return _linear(tables, samples, tf, dwell, grid)
-    prep, sites = _first(tables, samples, tf, grid)
-    return _second(tables, prep, _remainders(robot, sites), samples, tf, dwell, grid)
+    ``tables``, through the shared compiled programs (``programs``). ``second_order`` (default): the
+    full model's second-order remainder is added; False: the linearized model."""
+    model = RolloutModel(robot=robot, tf=jnp.asarray(tf, dtype=float), dwell=jnp.asarray(dwell, dtype=float),
+                         grid=grid, second_order=second_order)
+    state = RolloutState(tables=tables, samples=samples)
+    for stage in programs(second_order):
+        state = rl.merge(state, _program(model, rl.restrict(state, stage.reads), stage=stage), stage.writes)
+    return state.series
 
 
 def run_many(jobs: Sequence[tuple], grid: Grid, second_order: bool = True) -> Series:
     """Rollouts of the jobs (tables, samples, tf, dwell, robot), stacked along a leading axis (run
-    side by side on the host's cores, ``jaxflex.parallel``)."""
+    side by side on the host's cores, ``jaxflex.runtime.threads``)."""
     return trees.stack(host_map(lambda job: run(*job, grid=grid, second_order=second_order), jobs))
+
+
+@jax.jit
+def batch_metrics(series) -> dict:
+    """``metrics`` of a batch of runs: every leaf of ``series`` with the same leading batch axes
+    (those of ``series.t`` but its last) -> dict name -> array of that batch shape. A small program of
+    its own, so the rollouts compile once whether or not their metrics are wanted."""
+    lead = series.t.shape[:-1]
+    flat = jax.tree_util.tree_map(lambda a: a.reshape((-1,) + a.shape[len(lead):]), series)
+    return {k: v.reshape(lead) for k, v in jax.vmap(metrics)(flat).items()}
 
 
 def metrics_of(series: Series) -> dict:
     """Metrics (``jaxflex.metrics``) of a batch of runs as numpy arrays of the batch shape."""
     return {k: np.asarray(v) for k, v in batch_metrics(series).items()}
+
+
+@functools.partial(jax.jit, static_argnames=("grid",))
+def _motion_samples(length, profile, tf, grid):
+    return motion_samples(length, profile, tf, grid)
+
+
+def sample_motion(length, profile: Profile, tf, grid: Grid) -> MotionSamples:
+    """``simulate.motion_samples`` on concrete values through one compiled program per kind of law
+    (its display name does not matter): eager evaluation would dispatch (and compile) every small
+    operation of the law on its own."""
+    return _motion_samples(jnp.asarray(length, dtype=float), dataclasses.replace(profile, name=""),
+                           jnp.asarray(tf, dtype=float), grid)
 
 
 REMEMBERED_MODELS = 16      # LawEvaluators of at most this many models keep their tables in the memo
@@ -107,23 +122,18 @@ class LawEvaluator:
     model at a time, so evaluators of any model set share them. ``keep=False``: the tables are not
     kept but built again at every call, in groups of ``STREAM_MODELS`` models used for every law of
     the call (``metrics_many``) and dropped (for a large set: the memory of a few models' tables
-    instead of all of them). ``chunk`` is accepted for compatibility (it used to set the batch size
-    of a vmapped program) and must be >= 1."""
+    instead of all of them)."""
 
-    def __init__(self, models: ModelSet, path: Path, tf: float, dwell: float, grid: Grid, *,
-                 chunk: int | None = None, keep: bool = True):
+    def __init__(self, models: ModelSet, path: Path, tf: float, dwell: float, grid: Grid, *, keep: bool = True):
         k = len(models.labels)
-        chunk = k if chunk is None else int(chunk)
-        if chunk < 1:
-            raise ValueError(f"chunk must be >= 1, got {chunk}")
-        self.models, self.path, self.tf, self.dwell, self.grid, self.chunk = models, path, tf, dwell, grid, chunk
+        self.models, self.path, self.tf, self.dwell, self.grid = models, path, tf, dwell, grid
         # the tables built and kept per model (the rollouts take them one model at a time), in one
         # copy: 2.3 MB per model on the default path, 0.5 GB for the studies' 212 evaluation models;
         # the same coefficient program on the same chunks of poses as a stacked build, so the same values.
         # Without ``keep`` every call builds them again (in groups of models, see ``metrics_many``):
         # a few models' tables in memory at a time, the same values.
-        self._robots = _robot_list(models.robots)
-        self._remember = k <= REMEMBERED_MODELS     # small sets come again (``linearized.coeffs_many``)
+        self._robots = models.singles()
+        self._remember = k <= REMEMBERED_MODELS     # small sets come again (``tables.coeffs_many``)
         self._tables = host_map(self._build, self._robots) if keep else None
 
     def _build(self, robot: Robot) -> Tables:

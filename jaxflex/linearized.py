@@ -22,9 +22,6 @@ do not depend on the motion law or tf.
 """
 from __future__ import annotations
 
-import functools
-import threading
-from collections import OrderedDict
 from typing import NamedTuple
 
 import jax
@@ -34,8 +31,6 @@ from jax.custom_derivatives import SymbolicZero
 
 from jaxflex import model as mdl
 from jaxflex import trees
-from jaxflex.compiled import BUILD
-from jaxflex.parallel import host_map
 from jaxflex.path import Path, path_frame
 from jaxflex.robot import Robot, joint_motion
 
@@ -240,7 +235,9 @@ class Tables(NamedTuple):
         return Tables(values=self.values.fast(), breaks=self.breaks)
 
 
-def _segment_nodes(breaks):
+def segment_nodes(breaks):
+    """Arc lengths (sum(SEGMENT_NODES),) [m] of the table nodes: uniform per segment of the path,
+    its ends included, between the segment boundaries ``breaks`` (6,)."""
     pieces = []
     for k, n in enumerate(SEGMENT_NODES):
         pieces.append(breaks[k] + (breaks[k + 1] - breaks[k]) * jnp.linspace(0.0, 1.0, n))
@@ -250,7 +247,7 @@ def _segment_nodes(breaks):
 def table_poses(robot: Robot, path: Path):
     """Table nodes: motor angles and their arc-length derivatives, each (K, 2), at the nodes of the
     path (K = sum(SEGMENT_NODES)). Cheap; depends on the blend family (static)."""
-    s = _segment_nodes(path.breaks)
+    s = segment_nodes(path.breaks)
     return jax.vmap(lambda si: path_pose(robot, path, si))(s)
 
 
@@ -262,110 +259,9 @@ def coeffs_at(robot: Robot, qa, qa1, qa2) -> Coeffs:
 
 def build_tables(robot: Robot, path: Path) -> Tables:
     """Tabulate the linearization coefficients along the path (vmapped over the nodes); traceable
-    (differentiable in the path parameters). Outside a traced function prefer ``path_tables``."""
+    (differentiable in the path parameters). On concrete values ``jaxflex.tables.path_tables`` builds
+    the same tables through one shared compiled program."""
     return Tables(values=coeffs_at(robot, *table_poses(robot, path)), breaks=path.breaks)
-
-
-COEFF_CHUNK = sum(SEGMENT_NODES)   # poses per call of the shared coefficient program: one path table
-                         # is one call, larger sets (sweeps, workspaces) a few (padding costs compute)
-
-
-@functools.partial(jax.jit, compiler_options=BUILD)
-def _coeffs_chunk(robot: Robot, qa, qa1, qa2) -> Coeffs:
-    return coeffs_at(robot, qa, qa1, qa2)
-
-
-def _robot_list(robot: Robot) -> list[Robot]:
-    """A robot, or a stack of robots (leaves with a leading axis), as a list of single robots."""
-    if np.ndim(robot.payload) == 0:
-        return [robot]
-    return [jax.tree_util.tree_map(lambda a: a[k], robot) for k in range(np.shape(robot.payload)[0])]
-
-
-_MEMO: OrderedDict = OrderedDict()     # content key -> Coeffs (coeffs_many's recent results)
-_MEMO_LOCK = threading.Lock()
-MEMO_BYTES = 256 * 2**20   # the remembered results' total size: the oldest go first beyond it
-
-
-def _remember(key: bytes, value: Coeffs) -> None:
-    size = sum(v.nbytes for v in jax.tree_util.tree_leaves(value))      # no copy to the host
-    if size > MEMO_BYTES // 4:
-        return
-    with _MEMO_LOCK:
-        _MEMO[key] = (value, size)
-        while sum(s for _, s in _MEMO.values()) > MEMO_BYTES:
-            _MEMO.popitem(last=False)
-
-
-def clear_memo() -> None:
-    """Forget ``coeffs_many``'s remembered results (they only cost memory: at most ``MEMO_BYTES``)."""
-    with _MEMO_LOCK:
-        _MEMO.clear()
-
-
-def coeffs_many(robot: Robot, qa, qa1, qa2, *, remember: bool = True) -> Coeffs:
-    """``coeffs_at`` for any number N of poses (qa, qa1, qa2: (N, 2) each) through one compiled
-    program of fixed shape (``COEFF_CHUNK`` poses per call) that every table builder shares: the
-    sweep tables, the model-set tables and the workspace tables compile ``pose_coeffs`` once per
-    process (it is the costly compilation: ~20 s on a 2-core CPU). ``robot`` may be a stack of K
-    robots; then the poses are (K, N, 2) or shared (N, 2), and every leaf gets a leading K axis.
-    Not traceable (call it on concrete arrays). Recent results are remembered by the content of the
-    inputs (``trees.content_key``): the same robots and poses again (a study's tables rebuilt by the
-    next study or a rerun in the same process) return the same arrays without running the program;
-    ``remember=False`` neither looks them up nor keeps the result (large one-off sets)."""
-    if not remember:
-        return _coeffs_many(robot, qa, qa1, qa2)
-    key = trees.content_key(robot, qa, qa1, qa2)
-    with _MEMO_LOCK:
-        hit = _MEMO.get(key)
-        if hit is not None:
-            _MEMO.move_to_end(key)
-            return hit[0]
-    out = _coeffs_many(robot, qa, qa1, qa2)
-    _remember(key, out)
-    return out
-
-
-def _coeffs_many(robot: Robot, qa, qa1, qa2) -> Coeffs:
-    robots = _robot_list(robot)
-    stacked = np.ndim(robot.payload) > 0
-    poses = [np.asarray(a, dtype=float) for a in (qa, qa1, qa2)]
-    n = poses[0].shape[-2]
-    pad = -n % COEFF_CHUNK
-    jobs = []
-    for k, r in enumerate(robots):
-        qs = [p[k] if p.ndim == 3 else p for p in poses]
-        qs = [np.concatenate([q, np.repeat(q[:1], pad, axis=0)]) for q in qs]    # valid filler poses
-        r = jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype=float), r)
-        jobs += [(r, *(q[i:i + COEFF_CHUNK] for q in qs)) for i in range(0, n + pad, COEFF_CHUNK)]
-    parts = host_map(lambda job: _coeffs_chunk(*job), jobs)       # the chunks side by side (jaxflex.parallel)
-    per = (n + pad) // COEFF_CHUNK
-    out = [trees.concatenate(parts[k * per:(k + 1) * per], length=n) for k in range(len(robots))]
-    return trees.stack(out) if stacked else out[0]
-
-
-# one program per blend family, shared by every caller
-_table_poses = jax.jit(table_poses, compiler_options=BUILD)
-
-
-def robot_table_poses(robot: Robot, path: Path):
-    """``table_poses`` on concrete values for a robot or a stack of K robots (leading K axis on
-    every output), one robot at a time through the shared compiled program."""
-    if np.ndim(robot.payload) == 0:
-        return _table_poses(robot, path)
-    poses = [_table_poses(r, path) for r in _robot_list(robot)]
-    return tuple(trees.stack(a) for a in zip(*poses))
-
-
-def path_tables(robot: Robot, path: Path, *, remember: bool = True) -> Tables:
-    """``build_tables`` on concrete arrays through the shared coefficient program (``coeffs_many``,
-    which remembers recent results unless ``remember`` is False): no new compilation of the model
-    per caller. ``robot`` may be a stack of K robots (tables with a leading K axis)."""
-    values = coeffs_many(robot, *robot_table_poses(robot, path), remember=remember)
-    if np.ndim(robot.payload) == 0:
-        return Tables(values=values, breaks=path.breaks)
-    k = np.shape(robot.payload)[0]
-    return Tables(values=values, breaks=jnp.broadcast_to(path.breaks, (k,) + path.breaks.shape))
 
 
 def cubic_weights(t):

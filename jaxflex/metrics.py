@@ -17,6 +17,8 @@ would see).
 """
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 
@@ -47,11 +49,19 @@ def metrics(series) -> dict:
     }
 
 
-@jax.jit
-def batch_metrics(series) -> dict:
-    """``metrics`` of a batch of runs: every leaf of ``series`` with the same leading batch axes
-    (those of ``series.t`` but its last) -> dict name -> array of that batch shape. A small program of
-    its own, so the rollouts compile once whether or not their metrics are wanted."""
-    lead = series.t.shape[:-1]
-    flat = jax.tree_util.tree_map(lambda a: a.reshape((-1,) + a.shape[len(lead):]), series)
-    return {k: v.reshape(lead) for k, v in jax.vmap(metrics)(flat).items()}
+class Terms(NamedTuple):
+    """What the objectives read of one run: the vibration energy at tf [J], the mean square dwell
+    amplitude |e - e_static|^2 over the dwell [m^2], the peak motor torque |tau| over the motion
+    [N m] and the metrics (dict name -> scalar, ``metrics``)."""
+
+    energy: jax.Array
+    dwell_ms: jax.Array
+    torque: jax.Array
+    metrics: dict
+
+
+def terms(series) -> Terms:
+    """The ``Terms`` of one run's ``Series``."""
+    amp = series.e_dwell - series.e_static[None]
+    return Terms(series.energy_tf, jnp.mean(jnp.sum(amp * amp, axis=-1)), jnp.max(jnp.abs(series.tau)),
+                 metrics(series))

@@ -42,8 +42,7 @@ import numpy as np
 
 from jaxflex import linalg
 from jaxflex.beams import beam_modes, cross_mass
-from jaxflex.compiled import BUILD
-from jaxflex.robot import Robot, check_reachable, circle_intersection, igm
+from jaxflex.robot import Robot, circle_intersection, igm
 
 
 class Layout(NamedTuple):
@@ -610,19 +609,8 @@ def static_deflection(robot: Robot, qa, external=None) -> jax.Array:
     return ee_position(robot, qa, qe) - ee_position(robot, qa, jnp.zeros_like(qe))
 
 
-def _frequencies_at_point(robot: Robot, x):
+def frequencies_at_point(robot: Robot, x):
+    """Locked-motor natural frequencies [Hz] (ne,) at end-effector position x (2,) [m] (the rigid
+    IGM pose). Traceable; on concrete values ``jaxflex.frequencies.modes_at_point`` checks the pose
+    and runs it compiled."""
     return locked_modes(robot, igm(robot, x))[0]
-
-
-_frequencies_at_point_jit = jax.jit(_frequencies_at_point, compiler_options=BUILD)
-
-
-def modes_at_point(robot: Robot, x):
-    """Locked-motor natural frequencies [Hz] (ne,) at end-effector position x (2,) (rigid IGM pose).
-
-    A concrete (non-traced) x is first checked for reachability and singularity (ValueError), then
-    evaluated by one compiled program (shared by every caller with the same mode counts)."""
-    if any(isinstance(v, jax.core.Tracer) for v in jax.tree_util.tree_leaves((robot, x))):
-        return _frequencies_at_point(robot, x)
-    check_reachable(robot, np.asarray(x)[None], "pose")
-    return _frequencies_at_point_jit(robot, jnp.asarray(x, dtype=float))

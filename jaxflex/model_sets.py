@@ -13,13 +13,14 @@ import numpy as np
 
 from jaxflex import model as mdl
 from jaxflex import trees
+from jaxflex.frequencies import modes_at_point
 from jaxflex.path import Cycle
 from jaxflex.robot import Robot
 
 
 def place_first_mode_hz(robot: Robot, cycle: Cycle) -> float:
     """First locked-motor natural frequency [Hz] at the place pose (payload included)."""
-    return float(mdl.modes_at_point(robot, np.asarray(cycle.place))[0])
+    return float(modes_at_point(robot, np.asarray(cycle.place))[0])
 
 
 class ModelId(NamedTuple):
@@ -71,6 +72,10 @@ class ModelSet(NamedTuple):
 
     robots: Robot
     ids: tuple
+
+    def singles(self) -> list[Robot]:
+        """The K robots, one by one."""
+        return trees.unstack(self.robots)
 
     @property
     def labels(self) -> tuple:

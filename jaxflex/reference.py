@@ -32,7 +32,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxflex import checks, compiled
+from jaxflex import checks
+from jaxflex.runtime import options
 from jaxflex import model as mdl
 from jaxflex import trees
 from jaxflex.expm import phi_times, squarings_for
@@ -55,7 +56,7 @@ def _joint_samples_chunked(robot: Robot, path: Path, profile: Profile, tf, eta, 
     return trees.concatenate(parts, length=n)
 
 
-@functools.partial(jax.jit, static_argnames="side", compiler_options=compiled.BUILD)
+@functools.partial(jax.jit, static_argnames="side", compiler_options=options.BUILD)
 def _joint_samples(robot: Robot, path: Path, profile: Profile, tf, eta, side):
     """Motor angles, rates, accelerations (T, 2) each at normalized times eta (T,) (one program per
     path family, law kind and sample count)."""
@@ -308,7 +309,7 @@ def _integrate(robot, masses, samples, tf, dwell, n, nd, method, squarings, star
                   dt_dwell=batch(hd), edd_tf_low=low)
 
 
-@functools.partial(jax.jit, static_argnames="exponential", compiler_options=compiled.ONCE)
+@functools.partial(jax.jit, static_argnames="exponential", compiler_options=options.ONCE)
 def _start(robot, masses, qa_pick, qa_place, h, exponential):
     """Per run, from the motor angles at the pick and place poses (B, 2): the initial state
     (B, 2 ne), static equilibrium at rest; the static equilibrium q_e* (B, ne) and the static error
@@ -333,7 +334,7 @@ def _start(robot, masses, qa_pick, qa_place, h, exponential):
     return jax.vmap(one)(masses, qa_pick, qa_place)
 
 
-@functools.partial(jax.jit, static_argnames=("method", "squarings"), compiler_options=compiled.BUILD)
+@functools.partial(jax.jit, static_argnames=("method", "squarings"), compiler_options=options.BUILD)
 def _advance(robot, masses, omega, x, steps, motor, *, method, squarings):
     """Steps of size ``steps`` (T,) [s] from the states x (B, 2 ne), motor motion (B, T, 3, 3, 2):
     the states after them and, per step, the state at its start and the outputs (e, e', e'', tau)
@@ -365,7 +366,7 @@ def _advance(robot, masses, omega, x, steps, motor, *, method, squarings):
     return jax.vmap(run)(masses, omega, x, motor)
 
 
-@functools.partial(jax.jit, compiler_options=compiled.ONCE)
+@functools.partial(jax.jit, compiler_options=options.ONCE)
 def _ends(robot, masses, end, q_star, x_tf, x_end):
     """Per run, from the motor motion at the left limit at tf ``end`` (B, 3, 2), the static
     equilibrium q_e* (B, ne) at the place pose and the states at tf and at the end of the dwell

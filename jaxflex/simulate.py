@@ -23,12 +23,11 @@ the full model's second-order remainder along the first pass (``Grid.remainder_p
 interval), which brings every metric within about 0.3 % of the full nonlinear model
 (tests/test_reference.py).
 
-All functions are pure; ``rollout`` is written for one trajectory and vmapped by the sweep.
+All functions are pure, for one trajectory; ``jaxflex.rollout`` composes them into the stages of a
+rollout.
 """
 from __future__ import annotations
 
-import dataclasses
-import functools
 from typing import NamedTuple
 
 import jax
@@ -89,19 +88,6 @@ def motion_samples(length, profile: Profile, tf, grid: Grid) -> MotionSamples:
         return v.s * length, v.ds * length / tf, v.dds * length / tf**2
 
     return MotionSamples(start=at(k / n, 1), end=at((k + 1) / n, -1), mid=at((np.arange(nc) + 0.5) / nc, 1))
-
-
-@functools.partial(jax.jit, static_argnames=("grid",))
-def _motion_samples_jit(length, profile, tf, grid):
-    return motion_samples(length, profile, tf, grid)
-
-
-def sample_motion(length, profile: Profile, tf, grid: Grid) -> MotionSamples:
-    """``motion_samples`` on concrete values through one compiled program per kind of law (its
-    display name does not matter): eager evaluation would dispatch (and compile) every small
-    operation of the law on its own."""
-    return _motion_samples_jit(jnp.asarray(length, dtype=float), dataclasses.replace(profile, name=""),
-                               jnp.asarray(tf, dtype=float), grid)
 
 
 class Series(NamedTuple):
@@ -277,7 +263,6 @@ def _jump_nodes(grid: Grid) -> np.ndarray:
     return np.arange(1, 9) * (grid.coarse // 8) * grid.fine
 
 
-@functools.lru_cache(maxsize=32)
 def _remainder_stencil(grid: Grid):
     """Static sampling and interpolation plan of the second-order remainder.
 
@@ -286,8 +271,8 @@ def _remainder_stencil(grid: Grid):
     the last is tf). Between consecutive samples of one jump-free segment it is linear in time.
     Returns the right-limit sample nodes (S,), and for the start and the end of every fine step
     (N,) the indices of the two bracketing samples in [right samples, left samples] and the weight
-    of the second. Cached per grid (``first_pass`` and ``add_remainders`` both read it, in separate
-    programs of the engine); the arrays are read only."""
+    of the second. A static plan (numpy), computed when ``first_pass`` and ``add_remainders`` are
+    traced."""
     nc, m, r = grid.coarse, grid.fine, max(1, min(grid.remainder_points, grid.fine))
     offsets = np.unique(np.round(np.arange(r) * m / r).astype(int))
     right = (np.arange(nc)[:, None] * m + offsets[None, :]).ravel()
@@ -313,6 +298,21 @@ def _remainder_stencil(grid: Grid):
     return right, plans
 
 
+class Sites(NamedTuple):
+    """Where the second-order remainder is sampled (S sites: the right-limit nodes of
+    ``_remainder_stencil``, then the left limits at the jump nodes): the pose qa (S, 2) [rad] with its
+    arc-length derivatives qa1 [rad/m] and qa2 [rad/m^2], the path speed ds [m/s] and acceleration
+    dds [m/s^2], the first pass's elastic state x = [q_e, q_e'] (S, 2 ne) and acceleration qdd (S, ne)."""
+
+    qa: jax.Array
+    qa1: jax.Array
+    qa2: jax.Array
+    ds: jax.Array
+    dds: jax.Array
+    x: jax.Array
+    qdd: jax.Array
+
+
 class Forcing(NamedTuple):
     """Elastic forcing f [N] (N, ne) and motor torques tau_r [N m] (N, 2) at the start (right limit)
     and end (left limit) of every fine step."""
@@ -324,7 +324,7 @@ class Forcing(NamedTuple):
 
 
 class Prepared(NamedTuple):
-    """What both passes of ``rollout`` share: the frozen maps per coarse interval, the fast
+    """What both passes of a rollout share: the frozen maps per coarse interval, the fast
     coefficients at the fine nodes (start and end of every step), the forcing and the initial state."""
 
     frozen: _Frozen
@@ -335,7 +335,7 @@ class Prepared(NamedTuple):
 
 
 def prepare(tables: Tables, samples: MotionSamples, tf, grid: Grid) -> Prepared:
-    """The coefficients of ``rollout`` over [0, tf]: frozen per coarse interval, forcing and output
+    """The coefficients of the passes over [0, tf]: frozen per coarse interval, forcing and output
     maps per fine node, and the static equilibrium at the pick pose (s = 0, at rest)."""
     h = tf / grid.steps
     s_mid, ds_mid, dds_mid = samples.mid
@@ -355,7 +355,7 @@ def prepare(tables: Tables, samples: MotionSamples, tf, grid: Grid) -> Prepared:
 
 
 def first_pass(tables: Tables, prep: Prepared, samples: MotionSamples, grid: Grid):
-    """The first pass of ``rollout`` and the corrections of the second that follow from it.
+    """The first pass of a rollout and the corrections of the second that follow from it.
 
     Returns (forcing, sites): ``prep.forcing`` with, if ``grid.continuous``, the variation of the
     coefficients within each coarse interval along the first-pass solution (1. below), and the
@@ -415,13 +415,13 @@ def first_pass(tables: Tables, prep: Prepared, samples: MotionSamples, grid: Gri
     right, _ = _remainder_stencil(grid)
     before = _jump_nodes(grid) - 1                         # last fine step before each jump node
     cat = lambda a, b: jnp.concatenate([a[right], b[before]])
-    sites = (cat(fast_start.qa, fast_end.qa), cat(fast_start.qa1, fast_end.qa1), cat(fast_start.qa2, fast_end.qa2),
-             cat(samples.start[1], samples.end[1]), cat(samples.start[2], samples.end[2]),
-             jnp.concatenate([x1[right], x1_end[before]]), jnp.concatenate([qdd1_start[right], qdd1_end[before]]))
+    sites = Sites(cat(fast_start.qa, fast_end.qa), cat(fast_start.qa1, fast_end.qa1), cat(fast_start.qa2, fast_end.qa2),
+                  cat(samples.start[1], samples.end[1]), cat(samples.start[2], samples.end[2]),
+                  jnp.concatenate([x1[right], x1_end[before]]), jnp.concatenate([qdd1_start[right], qdd1_end[before]]))
     return forcing, sites
 
 
-def remainders(robot, sites) -> jax.Array:
+def remainders(robot, sites: Sites) -> jax.Array:
     """The full model's second-order remainder (``linearized.remainder``) at the sites of
     ``first_pass``: (S, 2 + ne), rows [:, :2] motor torques [N m], [:, 2:] elastic forces [N]."""
     return jax.vmap(lambda qa, q1, q2, ds, dds, x, qdd: remainder(robot, qa, q1, q2, ds, dds, x, qdd))(*sites)
@@ -437,29 +437,8 @@ def add_remainders(forcing: Forcing, r_all, grid: Grid) -> Forcing:
                    forcing.tr_start + at_start[:, :2], forcing.tr_end + at_end[:, :2])
 
 
-def rollout(tables: Tables, samples: MotionSamples, tf, dwell, grid: Grid, robot=None) -> Series:
-    """Simulate one trajectory: motion over [0, tf] [s] then a dwell [s] at the place pose.
-
-    A first pass with coefficients frozen per coarse interval gives z1 = [q_e, q_e', q_e'']; a second
-    pass adds, as forcing, the variation of the coefficients within each interval along z1 (with
-    ``grid.continuous``, the default) and, with ``robot`` (the robot the tables were built for), the
-    full model's remainder R(z1) - R(0) - R'(0) z1 (``linearized.remainder``; extra forcing and
-    torque): one defect correction, so the run is second-order accurate in the elastic coordinates
-    (error O(q_e^3) instead of O(q_e^2)). Without robot and with ``continuous=False`` it is a
-    single pass of the plain linearized model. The dwell keeps the linear equations (its remainder
-    is of the order of the static sag times the residual amplitude, below 1e-3 of it).
-    """
-    prep = prepare(tables, samples, tf, grid)
-    if robot is not None or grid.continuous:
-        forcing, sites = first_pass(tables, prep, samples, grid)
-        if robot is not None:
-            forcing = add_remainders(forcing, remainders(robot, sites), grid)
-        prep = prep._replace(forcing=forcing)
-    return second_pass(tables, prep, samples, tf, dwell, grid)
-
-
 def second_pass(tables: Tables, prep: Prepared, samples: MotionSamples, tf, dwell, grid: Grid) -> Series:
-    """The last pass of ``rollout`` with the forcing of ``prep`` (corrected by ``first_pass`` and
+    """The last pass of a rollout with the forcing of ``prep`` (corrected by ``first_pass`` and
     ``add_remainders``), then the dwell; the outputs at every node as a ``Series``."""
     n = grid.steps
     h = tf / n

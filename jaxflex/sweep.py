@@ -18,13 +18,15 @@ import numpy as np
 from jaxflex import checks, engine, trees
 from jaxflex.blends import BLENDS
 from jaxflex.expm import squarings_for
-from jaxflex.linearized import Tables, coeffs_many, robot_table_poses
+from jaxflex.linearized import Tables
+from jaxflex.tables import coeffs_stacked, robot_table_poses
 from jaxflex.metrics import METRICS
 from jaxflex.path import check_path_args, make_path
 from jaxflex.profiles import PROFILES, make_profile
 from jaxflex.progress import stage
 from jaxflex.robot import Robot, check_cycle_reachable
-from jaxflex.simulate import Grid, check_grid, sample_motion
+from jaxflex.engine import sample_motion
+from jaxflex.simulate import Grid, check_grid
 
 
 class Case(NamedTuple):
@@ -71,11 +73,11 @@ def _poses(robot, cycle, d, e, n, blend):
 
 def _coeffs(robot, payloads, qa, qa1, qa2):
     """Coefficients for every payload (C,) and blend: poses (B, K, 2) -> leaves (C, B, K, ...),
-    through the coefficient program every table builder shares (``linearized.coeffs_many``)."""
+    through the coefficient program every table builder shares (``tables.coeffs_stacked``)."""
     shape = qa.shape[:2]
     flat = [jnp.reshape(a, (-1, 2)) for a in (qa, qa1, qa2)]
     robots = trees.stack([robot.replace(payload=m) for m in payloads], dtype=float)
-    values = coeffs_many(robots, *flat)
+    values = coeffs_stacked(robots, *flat)
     return jax.tree_util.tree_map(lambda v: v.reshape(v.shape[:1] + shape + v.shape[2:]), values)
 
 
@@ -189,9 +191,9 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES,
     tf [s]); validate inputs first (no compilation on bad input).
 
     Three compiled stages, each shared with the rest of the library: the table poses (one program per
-    blend family), the linearization coefficients (``linearized.coeffs_many``) and the rollouts, one
+    blend family), the linearization coefficients (``tables.coeffs_many``) and the rollouts, one
     trajectory at a time through the evaluation engine (``jaxflex.engine``, from a thread per core:
-    ``jaxflex.parallel``, the same results as one after another), then the metrics.
+    ``jaxflex.runtime.threads``, the same results as one after another), then the metrics.
     Timing: ``tables_s`` is the wall time of the table build (compilation included; the
     persistent compilation cache makes it short after the first run on a machine); ``compile_s``
     the first sweep (every rollout through the engine's one program, and the metrics) minus one

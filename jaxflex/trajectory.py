@@ -1,23 +1,21 @@
 """Trajectories = path x motion law x duration (paper Section 3): task and joint space samples.
 
-X(t) = P(s(t)) with s(t) = L S(t / tf) (arc-length parametrization, SPEC 2), so
+X(t) = P(s(t)) with s(t) = L S(t / tf) (arc-length parametrization, docs/conventions.md), so
     X' = T s',  X'' = K s'^2 + T s'',  X''' = K' s'^3 + 3 K s' s'' + T s''',
 with T, K, K' the arc-length derivatives of the path. Joint motion from the rigid IGM by
-forward-mode autodiff. ``sample_combinations`` stacks the 12 paper combinations (or any
-blends x profiles) in one jitted call, vmapped over profiles and time.
+forward-mode autodiff. ``combinations`` stacks the 12 paper combinations (or any blends x
+profiles), vmapped over profiles and time.
 """
 from __future__ import annotations
 
-from typing import NamedTuple, Sequence
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxflex.blends import BLENDS
-from jaxflex.compiled import BUILD
-from jaxflex.path import Cycle, Path, check_path_args, make_path, path_frame
-from jaxflex.profiles import PROFILES, Profile, make_profile, profile_eval, time_scaled
+from jaxflex.path import Cycle, Path, make_path, path_frame
+from jaxflex.profiles import Profile, make_profile, profile_eval, time_scaled
 from jaxflex.robot import Robot, check_cycle_reachable, joint_motion
 
 
@@ -98,7 +96,10 @@ def trajectory(robot: Robot, path: Path, profile: Profile, tf, t) -> Trajectory:
     return Trajectory(t, s, ds, dds, x, xd, xdd, xddd, q, qd, qdd)
 
 
-def _combinations(robot, cycle, tf, t, d, e, n, blends, profiles):
+def combinations(robot, cycle, tf, t, d, e, n, blends, profiles) -> Trajectory:
+    """Every blend x profile (static tuples of names; blend-major order) on the time grid t [s]:
+    a ``Trajectory`` with a leading axis len(blends) * len(profiles). Traceable; on concrete values
+    ``jaxflex.combinations.sample_combinations`` validates the inputs and runs it compiled."""
     out = []
     for blend in blends:
         path = make_path(cycle, blend, d, e, n)
@@ -110,29 +111,3 @@ def _combinations(robot, cycle, tf, t, d, e, n, blends, profiles):
         tt = jnp.broadcast_to(t, s.shape)
         out.append(Trajectory(tt, s, ds, dds, x, xd, xdd, xddd, *joints))
     return jax.tree_util.tree_map(lambda *a: jnp.concatenate(a), *out)
-
-
-_combinations_jit = jax.jit(_combinations, static_argnames=("blends", "profiles"), compiler_options=BUILD)
-
-
-def sample_combinations(robot: Robot, cycle: Cycle, tf, t, *, d=0.025, e=None, n=3.0,
-                        blends: Sequence[str] = BLENDS,
-                        profiles: Sequence[str] = PROFILES) -> tuple[Trajectory, list]:
-    """All blend x profile combinations (blend-major order) on the grid t, in one jitted call.
-
-    Returns the stacked Trajectory (leading axis len(blends) * len(profiles)) and the list of
-    (blend, profile) labels. Inputs are validated eagerly, before any compilation.
-    """
-    e = d if e is None else e
-    blends, profiles = tuple(blends), tuple(profiles)
-    for p in profiles:
-        make_profile(p)
-    for b in blends:
-        check_path_args(cycle, b, d, e, n, d, e, n)
-    check_tf(tf)
-    check_cycle_reachable(robot, cycle)
-    traj = _combinations_jit(robot, cycle, jnp.asarray(tf, dtype=float), jnp.asarray(t, dtype=float),
-                             jnp.asarray(d, dtype=float), jnp.asarray(e, dtype=float),
-                             jnp.asarray(n, dtype=float), blends, profiles)
-    labels = [(b, p) for b in blends for p in profiles]
-    return traj, labels

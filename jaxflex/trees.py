@@ -21,6 +21,14 @@ def stack(trees: Sequence, dtype=None):
     return jax.tree_util.tree_map(lambda *a: jnp.asarray(np.stack([np.asarray(v, dtype=dtype) for v in a])), *trees)
 
 
+def unstack(tree) -> list:
+    """A pytree whose leaves share a leading axis K -> the list of its K slices (``stack``'s
+    inverse)."""
+    leaves, treedef = jax.tree_util.tree_flatten(tree)
+    k = np.shape(leaves[0])[0]
+    return [jax.tree_util.tree_unflatten(treedef, [a[i] for a in leaves]) for i in range(k)]
+
+
 def concatenate(trees: Sequence, length: int | None = None):
     """Pytrees with equal structure -> one pytree whose leaves are joined along their leading axis
     (and cut to its first ``length`` entries if given)."""

@@ -29,10 +29,9 @@ import numpy as np
 from jax.custom_derivatives import SymbolicZero
 
 from jaxflex import trees
-from jaxflex.linearized import (Coeffs, Tables, _robot_list, _segment_nodes, coeff_shapes, coeffs_many,
-                                cubic_weights, pose_coeffs)
+from jaxflex.linearized import Coeffs, Tables, coeff_shapes, cubic_weights, pose_coeffs, segment_nodes
 from jaxflex.path import Cycle, Path, path_frame
-from jaxflex.robot import Robot, check_reachable, igm, joint_motion
+from jaxflex.robot import Robot, joint_motion
 
 ORDER0 = ("mass", "m_ae", "f0", "k0", "c0", "t0", "tq0", "tv0", "jx")       # pose only
 ORDER1 = ("f1", "k1", "c1", "t1", "tq1", "tv1", "jx1")                     # linear in qa1
@@ -45,10 +44,10 @@ MONOMIALS = {0: (0,), 1: (1, 2), 2: (3, 4, 5, 6, 7)}   # indices into [1, a, b, 
 # five evaluations determine every coefficient: at qa1 = e1 an order-1 field is B_a and an order-2
 # field B_aa, at e1 + e2 an order-2 field is B_aa + B_ab + B_bb, at qa2 = e1 it is B_c; an order-0
 # field is B_1 at any probe.
-_PROBES = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [1, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=float)
+PROBES = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [1, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]], dtype=float)
 
 
-def _order(field: str) -> int:
+def monomial_order(field: str) -> int:
     return 0 if field in ORDER0 else 1 if field in ORDER1 else 2
 
 
@@ -71,13 +70,13 @@ def grid_shape(cycle: Cycle, spacing: float = 0.005) -> tuple[int, int]:
     return max(4, math.ceil(l / spacing) + 1), max(4, math.ceil(h / spacing) + 1)
 
 
-def _combine(ev: dict) -> dict:
+def combine_probes(ev: dict) -> dict:
     """The monomial coefficients B of every field (field -> (k, ...)) from ``pose_coeffs`` at the
-    five probes ``_PROBES`` (field -> (5, ...))."""
+    five probes ``PROBES`` (field -> (5, ...))."""
     out = {}
     for name in FIELDS:
         e = ev[name]
-        order = _order(name)
+        order = monomial_order(name)
         if order == 0:
             out[name] = e[:1]
         elif order == 1:
@@ -89,13 +88,13 @@ def _combine(ev: dict) -> dict:
 
 def _basis_at(robot: Robot, qa):
     """The monomial coefficients B of every field (field -> (k, ...)) at motor angles qa (2,)."""
-    return _combine(_basis_full(robot, qa))
+    return combine_probes(_basis_full(robot, qa))
 
 
 def _basis_full(robot: Robot, qa):
-    """``pose_coeffs`` at the probes ``_PROBES`` (field -> (5, ...)), from which ``_basis_at`` forms
+    """``pose_coeffs`` at the probes ``PROBES`` (field -> (5, ...)), from which ``_basis_at`` forms
     the monomial coefficients."""
-    probes = jnp.asarray(_PROBES)
+    probes = jnp.asarray(PROBES)
     ev = jax.vmap(lambda p: pose_coeffs(robot, qa, p[:2], p[2:]))(probes)._asdict()
     return {k: v for k, v in ev.items() if k in FIELDS}
 
@@ -109,55 +108,19 @@ def grid_points(cycle: Cycle, shape: tuple[int, int]):
     return cycle.pick[None, None, :] + local @ cycle.basis.T
 
 
-@jax.jit
-def _grid_angles(robot: Robot, points):
-    return jax.vmap(lambda x: igm(robot, x))(points)
-
-
-_combine_all = jax.jit(jax.vmap(_combine))
-
-
-def build_workspace(robot: Robot, cycle: Cycle, spacing: float = 0.005) -> Workspace:
-    """Tabulate the pose functions over the cycle's rectangle with about ``spacing`` [m] between grid
-    points. ``robot`` may be a stack of robots (``optimize.objective.stack_robots``: leaves with a
-    leading axis K), which gives a Workspace with that leading axis. Raises ValueError when a grid
-    point is unreachable or singular (before any compilation). The model is evaluated through the
-    coefficient program every table builder shares (``linearized.coeffs_many``)."""
-    shape = grid_shape(cycle, spacing)
-    nu, nv = shape
-    stacked = np.ndim(robot.payload) > 0
-    robots = _robot_list(robot)
-    pts = np.asarray(grid_points(cycle, shape)).reshape(-1, 2)
-    check_reachable(robots[0], pts, "workspace grid point")
-    qa = np.stack([np.asarray(_grid_angles(r, jnp.asarray(pts))) for r in robots])      # (K, N, 2)
-    n, p = pts.shape[0], len(_PROBES)
-    probes = np.tile(_PROBES, (n, 1))                                                   # (N * 8, 4)
-    ev = coeffs_many(robot if stacked else robots[0], np.repeat(qa, p, axis=1) if stacked else np.repeat(qa[0], p, axis=0),
-                     probes[:, :2], probes[:, 2:])._asdict()
-    lead = (len(robots),) if stacked else ()
-    ev = {k: v.reshape((-1, p) + v.shape[len(lead) + 1:]) for k, v in ev.items() if k in FIELDS}
-    values = {k: v.reshape(lead + (nu, nv) + v.shape[1:]) for k, v in _combine_all(ev).items()}
-    step = jnp.stack([cycle.l / (nu - 1), cycle.h / (nv - 1)])
-    ws = Workspace(values=values, origin=jnp.asarray(cycle.pick, dtype=float), axes=jnp.asarray(cycle.basis), step=step)
-    if not stacked:
-        return ws
-    k = len(robots)
-    return ws._replace(origin=jnp.broadcast_to(ws.origin, (k, 2)), axes=jnp.broadcast_to(ws.axes, (k, 2, 2)),
-                       step=jnp.broadcast_to(ws.step, (k, 2)))
-
-
-def workspace_shapes(robot: Robot, cycle: Cycle, spacing: float = 0.005) -> Workspace:
-    """The shapes and dtypes of ``build_workspace(robot, cycle, spacing)`` (a Workspace of
-    ``jax.ShapeDtypeStruct``) without building it, so that a program taking the workspace can start
-    compiling (``jaxflex.compiled.compile_ahead``) while the tables are built: from the coefficients'
-    shapes (``linearized.coeff_shapes``, no trace of the model: tracing it at one pose took 4.2 s, all
-    of it before the tables and that compilation could start), through a trace of ``_combine`` only."""
+def workspace_shapes(robot: Robot, cycle: Cycle, spacing: float = 0.005, models: int | None = None) -> Workspace:
+    """The shapes and dtypes of ``tables.build_workspace(robot, cycle, spacing)`` (a Workspace of
+    ``jax.ShapeDtypeStruct``), or with ``models`` = K of ``tables.build_workspaces`` for a stack of K
+    robots like ``robot``, without building it, so that a program taking the workspace can start
+    compiling (``jaxflex.runtime.compiled.compile_ahead``) while the tables are built: from the
+    coefficients' shapes (``linearized.coeff_shapes``, no trace of the model, which would take
+    seconds before anything could start), through a trace of ``combine_probes`` only."""
     nu, nv = grid_shape(cycle, spacing)
-    lead = np.shape(robot.payload)[:1]
-    probes = len(_PROBES)
+    lead = () if models is None else (int(models),)
+    probes = len(PROBES)
     shapes = coeff_shapes(robot)._asdict()
     full = {k: jax.ShapeDtypeStruct((probes,) + v.shape, v.dtype) for k, v in shapes.items() if k in FIELDS}
-    basis = jax.eval_shape(_combine, full)
+    basis = jax.eval_shape(combine_probes, full)
     struct = lambda shape: jax.ShapeDtypeStruct(lead + shape, jnp.float64)
     return Workspace(values={k: struct((nu, nv) + v.shape) for k, v in basis.items()},
                      origin=struct((2,)), axes=struct((2, 2)), step=struct((2,)))
@@ -233,14 +196,14 @@ def _monomials(qa1, qa2):
 def coeffs_from_basis(basis: dict, qa, qa1, qa2) -> Coeffs:
     """``pose_coeffs`` from the pose functions at the pose qa (2,) and the path derivatives qa1, qa2."""
     mono = _monomials(qa1, qa2)
-    fields = {k: jnp.tensordot(mono[np.asarray(MONOMIALS[_order(k)])], v, axes=1) for k, v in basis.items()}
+    fields = {k: jnp.tensordot(mono[np.asarray(MONOMIALS[monomial_order(k)])], v, axes=1) for k, v in basis.items()}
     return Coeffs(**fields, qa=qa, qa1=qa1, qa2=qa2)
 
 
 def path_nodes(robot: Robot, path: Path):
     """Table nodes of a path (``linearized.SEGMENT_NODES``): end-effector positions (K, 2) [m] and the
     motor angles with their arc-length derivatives, (K, 2) each."""
-    s = _segment_nodes(path.breaks)
+    s = segment_nodes(path.breaks)
 
     def one(si):
         f = path_frame(path, si)

@@ -33,8 +33,9 @@ from jaxflex.sweep import Case, SweepConfig, default_grid, run_sweep
 from jaxflex.engine import LawEvaluator
 from jaxflex.model_sets import model_set
 from jaxflex.workspace import workspace_shapes
-from .loop import compile_gradient_ahead, is_hot
+from .gradient import resolved
 from .objective import decode, encode
+from .staged import Staged
 from .study import (PERTURB_E, PERTURB_PAYLOAD, StudyConfig, _abstract_scales, _workspaces, checked_study,
                     design_objective, nominal_indices, reference_scales, start_design,
                     torque_bounds, Training, train_design, training_models, training_weights)
@@ -91,10 +92,11 @@ def cycle_time_study(problem: Problem, tfs: Sequence[float] = (0.43, 0.40, 0.37,
     params = encode(cycle, start_design(cycle, n_coef, config.blend))
     if steps > 0:
         # the design gradient (one program for every tf) compiles in the background during the sweep
-        f, args = design_objective(Training(models, cycle, Timing(float(tfs[0]), dwell, grid),
-                                            _abstract_scales(len(models.ids), training_weights(train)),
-                                            workspace_shapes(models.robots, cycle)), config.train_config("design"))
-        compile_gradient_ahead(params, args, f=f, hot=is_hot(steps))
+        shapes = design_objective(Training(models, cycle, Timing(float(tfs[0]), dwell, grid),
+                                           _abstract_scales(len(models.ids), training_weights(train)),
+                                           workspace_shapes(models.robots, cycle, models=len(models.ids))),
+                                  config.train_config("design"))
+        resolved(Staged(), steps).compile_ahead(shapes, params)
     res = run_sweep(robot, cycle, [Case(payload, float(t)) for t in tfs],
                     SweepConfig(dwell=dwell, grid=grid, timed=False))
     dw = res.metrics["dwell_residual_mm"]                                   # (B, P, T)
@@ -112,10 +114,9 @@ def cycle_time_study(problem: Problem, tfs: Sequence[float] = (0.43, 0.40, 0.37,
               f"tf = {', '.join(f'{t:g}' for t in np.asarray(tfs, dtype=float))} s", flush=True)
     ref_eval = LawEvaluator(models, make_path(cycle, blend, 0.025), tf_ref, dwell, grid)
     bounds = torque_bounds(models, cycle, tf_ref, dwell, grid, ref_eval)       # per training model
-    chunk = len(models.labels)       # every evaluator in batches of this size: one rollout program
     perturbed = model_set(robot, [payload], stiffness=PERTURB_E, payload_scale=PERTURB_PAYLOAD)
     i_nominal = int(nominal_indices(perturbed, [payload])[0])      # the nominal model is one of them
-    paper_perturbed = LawEvaluator(perturbed, make_path(cycle, blend, 0.025), tf_ref, dwell, grid, chunk=chunk)
+    paper_perturbed = LawEvaluator(perturbed, make_path(cycle, blend, 0.025), tf_ref, dwell, grid)
     target_perturbed = float(np.max(paper_perturbed(make_profile(law))["dwell_residual_mm"]))
     workspaces = _workspaces(models, cycle, progress, config.memo)      # once for every tf
     opt_res, opt_worst, opt_tau, designs = [], [], [], []
@@ -129,7 +130,7 @@ def cycle_time_study(problem: Problem, tfs: Sequence[float] = (0.43, 0.40, 0.37,
         params = result.params
         x = jax.tree_util.tree_map(np.asarray, decode(cycle, params))
         path = design_path(cycle, x, config.blend)
-        m = LawEvaluator(perturbed, path, float(tf), dwell, grid, chunk=chunk)(shaped(x.coef, config.law_order))
+        m = LawEvaluator(perturbed, path, float(tf), dwell, grid)(shaped(x.coef, config.law_order))
         opt_res.append(float(m["dwell_residual_mm"][i_nominal]))
         opt_tau.append(float(m["max_torque_nm"][i_nominal]))
         opt_worst.append(float(np.max(m["dwell_residual_mm"])))

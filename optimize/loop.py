@@ -1,9 +1,8 @@
-"""optax optimizer loop: jitted update, checkpoint and resume, progress, early stop (SPEC 6).
+"""optax optimizer loop: jitted update, checkpoint and resume, progress, early stop.
 
-Gradients use reverse mode by default (``jax.value_and_grad``: one backward pass whatever the number
-of parameters; the small linear algebra has cheap custom derivatives, see ``jaxflex.linalg``), or
-forward mode (``value_and_grad_fwd``: a vmapped ``jax.jvp`` per parameter, no stored trajectory;
-cheaper only for two or three parameters).
+The gradient is computed as the strategy passed to ``minimize`` says (``optimize.gradient``: one
+program in reverse mode by default, forward mode, or the design objective's stages,
+``optimize.staged.Staged``).
 
 The loop is deterministic for a given start (no randomness is drawn; ``seed`` only perturbs the
 start when nonzero). A checkpoint (``.npz``, written atomically) holds the parameters, the optimizer
@@ -23,22 +22,11 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import optax
-from jax.flatten_util import ravel_pytree
 
-from jaxflex import checks, compiled
+from jaxflex import checks
 from jaxflex.progress import Progress
 
-
-def value_and_grad_fwd(f: Callable) -> Callable:
-    """(value, aux), gradient of a scalar function f(params) -> (value, aux) by forward mode."""
-    def vg(params):
-        flat, unravel = ravel_pytree(params)
-        g = lambda v: f(unravel(v))
-        basis = jnp.eye(flat.shape[0], dtype=flat.dtype)
-        primal, tangent = jax.vmap(lambda t: jax.jvp(g, (flat,), (t,)))(basis)
-        value, aux = jax.tree_util.tree_map(lambda a: a[0], primal)
-        return (value, aux), unravel(tangent[0])
-    return vg
+from .gradient import OneProgram, is_pytree, resolved
 
 
 class OptResult(NamedTuple):
@@ -93,21 +81,27 @@ def _code_digest() -> str:
     return h.hexdigest()
 
 
-def fingerprint(f, params0, args, config: "OptimizerConfig") -> str:
-    """A digest of everything that determines ``minimize(f, params0, args, config)``'s result: the
-    objective (a frozen dataclass instance such as ``objective.DesignObjective``: its class and fields),
-    the start, every array of ``args`` (values, shapes and dtypes), the schedule and stopping rules,
-    the monitor's name (its numbers are in the history) and the code (``_code_digest``). Raises
+def _is_dataclass_instance(f) -> bool:
+    return dataclasses.is_dataclass(f) and not isinstance(f, type) and f.__dataclass_params__.frozen
+
+
+def fingerprint(f, params0, args, config: "OptimizerConfig", gradient=OneProgram()) -> str:
+    """A digest of everything that determines ``minimize(f, params0, args, config, gradient)``'s
+    result: the objective (a frozen dataclass instance such as ``objective.DesignObjective``: its
+    class, its static fields and every array of its data), the start, every array of ``args``
+    (values, shapes and dtypes), the schedule and stopping rules, the gradient strategy, the
+    monitor's name (its numbers are in the history) and the code (``_code_digest``). Raises
     ValueError for another kind of objective (a function's name does not say what it computes)."""
-    if not (dataclasses.is_dataclass(f) and not isinstance(f, type) and f.__dataclass_params__.frozen):
+    if not _is_dataclass_instance(f):
         raise ValueError("a memo of optimizations needs an objective that a frozen dataclass instance describes "
                          f"(e.g. jaxflex.optimize.objective.DesignObjective), got {f!r}")
     h = hashlib.sha1(_code_digest().encode())
     c = config
-    h.update(repr((type(f).__module__, type(f).__qualname__, f, c.steps, float(c.learning_rate), c.decay,
-                   c.patience, float(c.rel_tol), c.target, c.mode, getattr(c.monitor, "__module__", None),
+    described = repr(jax.tree_util.tree_structure(f)) if is_pytree(f) else repr(f)
+    h.update(repr((type(f).__module__, type(f).__qualname__, described, c.steps, float(c.learning_rate), c.decay,
+                   c.patience, float(c.rel_tol), c.target, gradient, getattr(c.monitor, "__module__", None),
                    getattr(c.monitor, "__qualname__", None))).encode())
-    for tree in (params0, args):
+    for tree in (f if is_pytree(f) else None, params0, args):
         leaves, treedef = jax.tree_util.tree_flatten(tree)
         h.update(repr(treedef).encode())
         for leaf in leaves:
@@ -146,61 +140,13 @@ def learning_rate_at(step: int, steps: int, learning_rate: float, decay: bool) -
     return float(schedule(steps, learning_rate, decay)(step))
 
 
-def _value_and_grad(f: Callable, args, mode: str):
-    g = lambda p: f(p, *args)
-    return value_and_grad_fwd(g) if mode == "forward" else jax.value_and_grad(g, has_aux=True)
-
-
-HOT_STEPS = 20     # optimizations of at least this many steps run the gradient compiled as a hot program
-
-
-def _value_and_grad_plain(params, args, f, mode):
-    return _value_and_grad(f, args, mode)(params)
-
-
-# The same program twice: with the process's XLA options, and as a hot program (``compiled.HOT_LOOP``:
-# at least LLVM level 1). A long optimization takes the hot one: with XLA's defaults it compiles
-# sooner (42 s against 50 s) and runs each step faster (126 ms against 147 ms; the design gradient,
-# 6 kg, 2 cores). A few steps (smoke runs, gradient checks, quick notebooks) take the other, which
-# under a global level 0 (the test suite's) compiles in about half the time.
-_PROGRAMS = {False: jax.jit(_value_and_grad_plain, static_argnames=("f", "mode")),
-             True: jax.jit(_value_and_grad_plain, static_argnames=("f", "mode"), compiler_options=compiled.HOT_LOOP)}
-
-
-def is_hot(steps: int) -> bool:
-    """Whether an optimization of ``steps`` steps runs the hot gradient program (``HOT_STEPS``)."""
-    return steps >= HOT_STEPS
-
-
-def _staged(f, mode: str) -> bool:
-    """Whether f computes its own reverse-mode value and gradient: an objective with a true
-    ``staged_gradient`` attribute provides ``value_and_grad(params, args, hot=)`` and
-    ``compile_ahead(params, args, hot=)`` (``objective.DesignObjective``: ``optimize.staged``)."""
-    return mode == "reverse" and bool(getattr(f, "staged_gradient", False))
-
-
-def value_and_grad(params, args, *, f, mode: str = "reverse", hot: bool = False):
-    """((value, aux), gradient) of f(params, *args) -> (value, aux): the program the optimizer runs
-    at every step. Compiled with f static: calls with the same f (the same object) and new ``args``
-    values of the same shapes reuse one compilation (e.g. a sweep over tf or payloads, a benchmark
-    or a gradient check of the optimizer's own gradient). ``hot``: the hot program (``is_hot``), the
-    same values to round-off. An objective with a staged gradient (``_staged``) runs its own."""
-    if _staged(f, mode):
-        return f.value_and_grad(params, args, hot=bool(hot))
-    return compiled.call(_PROGRAMS[bool(hot)], (params, args), {"f": f, "mode": mode})
-
-
-value_and_grad._cache_size = lambda: sum(p._cache_size() for p in _PROGRAMS.values())
-
-
-def compile_gradient_ahead(params, args, *, f, mode: str = "reverse", hot: bool = False):
-    """Start compiling ``value_and_grad``'s program for parameters and arguments of these shapes
-    (arrays or ``jax.ShapeDtypeStruct``) in a background thread (``jaxflex.compiled.compile_ahead``);
-    the first ``value_and_grad`` call with the same f, mode, hot and shapes waits for it and uses it.
-    An objective with a staged gradient (``_staged``) compiles its own programs."""
-    if _staged(f, mode):
-        return f.compile_ahead(params, args, hot=bool(hot))
-    return compiled.compile_ahead(_PROGRAMS[bool(hot)], (params, args), {"f": f, "mode": mode})
+def value_and_grad(f, params, args=(), gradient=OneProgram()):
+    """((value, aux), gradient) of f(params, *args) -> (value, aux): what the optimizer runs at every
+    step, as the ``gradient`` strategy computes it (``optimize.gradient``; its build resolved by the
+    strategy's own default when None). Calls with the same objective structure and argument shapes
+    reuse one compilation (e.g. a sweep over tf or payloads, a benchmark or a gradient check of the
+    optimizer's own gradient)."""
+    return resolved(gradient, 0).value_and_grad(f, params, args)
 
 
 @jax.jit
@@ -213,17 +159,18 @@ def _adam_step(params, state, grad, learning_rate):
     return optax.apply_updates(params, step), state
 
 
-def _compile_key(f, params, args, mode) -> str:
-    """Name of the gradient program for the progress ETA memory: the objective and its argument
-    shapes (a program of other shapes compiles in another time)."""
-    shapes = [np.shape(a) for a in jax.tree_util.tree_leaves((params, args))]
-    digest = hashlib.sha1(repr((getattr(f, "__qualname__", repr(f)), mode, shapes)).encode()).hexdigest()[:12]
+def _compile_key(f, params, args, gradient) -> str:
+    """Name of the gradient program for the progress ETA memory: the objective, the strategy and the
+    argument shapes (a program of other shapes compiles in another time)."""
+    shapes = [np.shape(a) for a in jax.tree_util.tree_leaves((f, params, args))]
+    name = type(f).__qualname__ if _is_dataclass_instance(f) else getattr(f, "__qualname__", repr(f))
+    digest = hashlib.sha1(repr((name, gradient, shapes)).encode()).hexdigest()[:12]
     return f"compile gradient {digest}"
 
 
-def _update(params, state, args, learning_rate, *, f, mode, hot):
+def _update(params, state, args, learning_rate, *, f, gradient):
     """One optimizer step: the objective's value and gradient, then Adam."""
-    (value, aux), grad = value_and_grad(params, args, f=f, mode=mode, hot=hot)
+    (value, aux), grad = gradient.value_and_grad(f, params, args)
     new_params, state = _adam_step(params, state, grad, learning_rate)
     return new_params, state, value, aux
 
@@ -235,8 +182,8 @@ class OptimizerConfig:
     steps: updates at most; learning_rate: Adam's rate [-]; decay: warm-up and cosine decay of the
     rate over ``steps`` (``schedule``); patience, rel_tol: stop when the best value has not improved
     by ``rel_tol * max(1, |best|)`` for ``patience`` steps (this works for objectives on a log scale,
-    whose values cross zero); target: stop when the best value falls below it; mode: "reverse" or
-    "forward" autodiff; checkpoint: a .npz path to save to and resume from; progress: report on
+    whose values cross zero); target: stop when the best value falls below it; checkpoint: a .npz
+    path to save to and resume from; progress: report on
     stderr under ``label``; monitor: aux -> 1-D array of numbers recorded in every history row
     after (step, value)."""
 
@@ -246,7 +193,6 @@ class OptimizerConfig:
     patience: int = 25
     rel_tol: float = 1e-3
     target: float | None = None
-    mode: str = "reverse"
     checkpoint: str | os.PathLike | None = None
     progress: bool = True
     label: str = "optimize"
@@ -254,31 +200,33 @@ class OptimizerConfig:
     memo: str | os.PathLike | None = None
 
 
-def minimize(f: Callable, params0, args: tuple = (), config: OptimizerConfig = OptimizerConfig()) -> OptResult:
-    """Minimize f(params, *args) -> (value, aux) with Adam, as ``config`` says (``OptimizerConfig``).
+def minimize(f: Callable, params0, args: tuple = (), config: OptimizerConfig = OptimizerConfig(),
+             gradient=OneProgram()) -> OptResult:
+    """Minimize f(params, *args) -> (value, aux) with Adam, as ``config`` says (``OptimizerConfig``),
+    the gradient computed as the strategy ``gradient`` says (``optimize.gradient``; a build of None
+    is chosen by the number of steps, ``gradient.resolved``).
 
-    ``args`` are traced (pytrees of arrays): reuse the same function f with new ``args`` values to
-    avoid recompiling. Returns the best parameters seen (``OptResult``)."""
+    f is a pytree whose data are traced (``objective.DesignObjective``) or a function; ``args`` are
+    traced (pytrees of arrays): reuse the same objective structure with new data or ``args`` values
+    to avoid recompiling. Returns the best parameters seen (``OptResult``)."""
     c = config
     if not isinstance(c, OptimizerConfig):
         raise TypeError(f"config must be an OptimizerConfig, got {type(c).__name__}")
-    mode, checkpoint, progress, label, monitor, target = c.mode, c.checkpoint, c.progress, c.label, c.monitor, c.target
+    checkpoint, progress, label, monitor, target = c.checkpoint, c.progress, c.label, c.monitor, c.target
     decay, rel_tol = c.decay, c.rel_tol
     learning_rate, steps, patience = c.learning_rate, c.steps, c.patience
-    if mode not in ("reverse", "forward"):
-        raise ValueError(f"mode must be 'reverse' or 'forward', got {mode!r}")
     checks.positive("learning_rate", learning_rate)
     steps = checks.count("steps", steps, 0)
     patience = checks.count("patience", patience, 1)
     checks.nonnegative("rel_tol", rel_tol)
     if target is not None and not np.isnan(target):
         float(target)
-    hot = is_hot(steps)
-    update = functools.partial(_update, f=f, mode=mode, hot=hot)
+    gradient = resolved(gradient, steps)
+    update = functools.partial(_update, f=f, gradient=gradient)
     params, state = params0, _optimizer().init(params0)
     history, times, step, best, best_value, best_aux = [], [], 0, params0, np.inf, None
     ckpt = Path(checkpoint) if checkpoint else None
-    memo = Path(c.memo) / f"{fingerprint(f, params0, args, c)}.npz" if c.memo else None
+    memo = Path(c.memo) / f"{fingerprint(f, params0, args, c, gradient)}.npz" if c.memo else None
     recalled = memo is not None and memo.exists()
     resumed = recalled or (ckpt is not None and ckpt.exists())
     stopped = "steps"
@@ -298,8 +246,8 @@ def minimize(f: Callable, params0, args: tuple = (), config: OptimizerConfig = O
         # always a strongly typed float64 scalar: a change of type would retrace the update
         lr = jnp.asarray(rate(step), dtype=jnp.float64)
         if not bar.counting:       # the first step of this run: compiles the gradient unless done before
-            with bar.waiting(f"step {step + 1} (compiling the {mode}-mode gradient unless cached)",
-                             key=_compile_key(f, params, args, mode + " hot" * hot)):
+            with bar.waiting(f"step {step + 1} (compiling the gradient unless cached)",
+                             key=_compile_key(f, params, args, gradient)):
                 new_params, state, value, aux = update(params, state, args, lr)
                 value = float(value)
         else:
@@ -331,6 +279,6 @@ def minimize(f: Callable, params0, args: tuple = (), config: OptimizerConfig = O
         memo.parent.mkdir(parents=True, exist_ok=True)
         _save(memo, params, state, history, times, step, best, best_value, stopped)
     if best_aux is None:                       # resumed at the end: evaluate the best once
-        (best_value, best_aux), _ = value_and_grad(best, args, f=f, mode=mode, hot=hot)
+        (best_value, best_aux), _ = gradient.value_and_grad(f, best, args)
         best_value = float(best_value)
     return OptResult(best, best_value, best_aux, history, step, stopped, time.perf_counter() - started, times)

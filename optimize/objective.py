@@ -35,13 +35,16 @@ import jax
 import jax.numpy as jnp
 import jax.scipy.special  # noqa: F401  (logsumexp)
 
+from jaxflex import rollout as rl
 from jaxflex import trees
-from jaxflex.designs import Design, design_rollout
-from jaxflex.metrics import metrics
+from jaxflex.designs import Design
+from jaxflex.linearized import Tables
+from jaxflex.metrics import Terms
 from jaxflex.path import Cycle
 from jaxflex.profiles import shaped
 from jaxflex.robot import Robot
-from jaxflex.simulate import Grid, motion_samples, rollout
+from jaxflex.rollout import RolloutModel, RolloutState
+from jaxflex.simulate import Grid, motion_samples
 from jaxflex.workspace import Workspace
 
 N_MIN, N_MAX = 2.0, 8.0
@@ -86,29 +89,17 @@ class Scales(NamedTuple):
     weights: jax.Array | None = None
 
 
-def residual_terms(series) -> tuple:
-    """(energy at tf [J], mean square dwell amplitude |e - e_static|^2 [m^2], peak |tau| [N m])."""
-    amp = series.e_dwell - series.e_static[None]
-    return series.energy_tf, jnp.mean(jnp.sum(amp * amp, axis=-1)), jnp.max(jnp.abs(series.tau))
-
-
-def series_terms(series) -> dict:
-    """The per-model terms of the objective (``residual_terms``) and the metrics of one rollout."""
-    energy, dwell_ms, torque = residual_terms(series)
-    return {"energy": energy, "dwell_ms": dwell_ms, "torque": torque, "metrics": metrics(series)}
-
-
-def scaled_residual(terms: dict, energy_ref, dwell_ref):
+def scaled_residual(terms: Terms, energy_ref, dwell_ref):
     """E / E_ref + A / A_ref: a model's residual in units of its references (twice the module
     docstring's r_k), the only way ``combine`` depends on the energy and dwell terms."""
-    return terms["energy"] / energy_ref + terms["dwell_ms"] / dwell_ref
+    return terms.energy / energy_ref + terms.dwell_ms / dwell_ref
 
 
-def combine(terms: dict, scales: Scales, torque_weight: float = TORQUE_WEIGHT, power: float = 1.0):
+def combine(terms: Terms, scales: Scales, torque_weight: float = TORQUE_WEIGHT, power: float = 1.0):
     """The scalar objective J (module docstring) from per-model terms (leaves (K,)): the log of the
     weighted power mean of order ``power`` of the models' scaled residuals r_k (1: the weighted
     mean; larger: a smooth stand-in for the worst model, within a factor w_min^(-1/power) of it)."""
-    return combine_scaled(scaled_residual(terms, scales.energy, scales.dwell_ms), terms["torque"], scales,
+    return combine_scaled(scaled_residual(terms, scales.energy, scales.dwell_ms), terms.torque, scales,
                           torque_weight, power)
 
 
@@ -152,55 +143,70 @@ def over_models(fn, *batched):
 BLEND_FAMILY = "smoothstep"         # the optimized design's default blend family (d, e per corner; G4 joins)
 
 
+_static = dict(metadata=dict(static=True))
+
+
+@jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class DesignObjective:
-    """The design objective J (path and law, module docstring) for one grid and static
-    configuration: a hashable value, so equal configurations are one static argument of the
-    optimizer's compiled program (it compiles once for every tf, payload set and scale of the same
-    shapes).
+    """The design objective J (path and law, module docstring) on K training models: a pytree whose
+    data are the models and references, and whose static configuration decides the compiled program
+    (the same program for every tf, payload set and scale of the same shapes).
 
-    Called as f(params, robots, cycle, tf, dwell, scales, workspaces) -> (J, per-model terms):
-    ``robots`` K models stacked (``stack_robots``), tf and dwell [s], ``scales`` (``Scales``, one per
-    model), ``workspaces`` the models' workspace tables stacked alike (``jaxflex.workspace``) or None
-    to build each path's tables from the model. ``blend``: the design's blend family; ``order``: the
-    shaped law's end-factor order; ``power``: the order of the power mean over the models
-    (``combine``).
+    Data: ``robots`` the K models stacked (``stack_robots``), the ``cycle``, ``tf`` and ``dwell`` [s],
+    ``scales`` (``Scales``, one per model) and ``workspaces``, the models' workspace tables stacked
+    alike (``jaxflex.workspace``; None: each path's tables built from the model). Static: the rollout
+    ``grid``, the design's ``blend`` family, the shaped law's end-factor ``order``, the torque
+    penalty's weight and the ``power`` of the mean over the models (``combine``).
 
-    ``staged_gradient`` (default): the optimizer's reverse-mode value and gradient
-    (``loop.value_and_grad``) run model by model as a chain of small programs
-    (``optimize.staged``), the same values to round-off; False: ``jax.value_and_grad`` of the call
-    as one program."""
+    ``objective(params) -> (J, terms)``, terms (``metrics.Terms``) with leaves of leading axis K.
+    How its gradient is computed is the optimizer's choice (``optimize.gradient``): one program, or
+    the stages of the rollout model by model (``optimize.staged.Staged``, which reads
+    ``rollout_model``, ``start`` and ``head``)."""
 
-    grid: Grid
-    blend: str = BLEND_FAMILY
-    order: int = 3
-    torque_weight: float = TORQUE_WEIGHT
-    power: float = 1.0
-    staged_gradient: bool = True
+    robots: Robot
+    cycle: Cycle
+    tf: jax.Array
+    dwell: jax.Array
+    scales: Scales
+    workspaces: Workspace | None = None
+    grid: Grid = dataclasses.field(default=Grid(), **_static)
+    blend: str = dataclasses.field(default=BLEND_FAMILY, **_static)
+    order: int = dataclasses.field(default=3, **_static)
+    torque_weight: float = dataclasses.field(default=TORQUE_WEIGHT, **_static)
+    power: float = dataclasses.field(default=1.0, **_static)
 
-    def terms(self, params: Params, robots: Robot, cycle: Cycle, tf, dwell,
-              workspaces: Workspace | None = None) -> dict:
-        """The per-model terms (``series_terms``, leaves with the leading axis K) of the decoded
-        design on the second-order fast model."""
-        x = decode(cycle, params)
-        one = lambda robot, ws: series_terms(design_rollout(robot, cycle, x, tf, dwell, self.grid, blend=self.blend,
-                                                            order=self.order, second_order=True, workspace=ws))
-        return over_models(one, robots, workspaces)
+    @property
+    def count(self) -> int:
+        """The number K of training models."""
+        return int(self.robots.payload.shape[0])
 
-    def __call__(self, params: Params, robots: Robot, cycle: Cycle, tf, dwell, scales: Scales,
-                 workspaces: Workspace | None = None):
-        t = self.terms(params, robots, cycle, tf, dwell, workspaces)
-        return combine(t, scales, self.torque_weight, self.power), t
+    def rollout_model(self, robot: Robot, workspace: Workspace | None) -> RolloutModel:
+        """The rollout of one model (one robot and its workspace tables) of this objective."""
+        return RolloutModel(robot=robot, tf=self.tf, dwell=self.dwell, cycle=self.cycle, workspace=workspace,
+                            grid=self.grid, second_order=True, blend=self.blend, order=self.order)
 
-    def value_and_grad(self, params, args, *, hot: bool = False):
-        """((J, terms), gradient) through the staged programs (``optimize.staged.value_and_grad``)."""
-        from . import staged        # staged builds on this module's terms
-        return staged.value_and_grad(self, params, args, hot=hot)
+    @staticmethod
+    def start(model: RolloutModel, params: Params) -> RolloutState:
+        """The rollout's first state: the design the parameters decode to."""
+        return RolloutState(design=decode(model.cycle, params))
 
-    def compile_ahead(self, params, args, *, hot: bool = False):
-        """Start compiling the staged programs for these shapes (``optimize.staged.compile_ahead``)."""
-        from . import staged
-        return staged.compile_ahead(self, params, args, hot=hot)
+    @staticmethod
+    def head(terms: Terms, energy_ref, dwell_ref):
+        """(y, terms): y = [r_k, tau_k] (2,), the only values of one model's terms that ``combine``
+        depends on: its scaled residual (``scaled_residual``) and its peak torque [N m]."""
+        return jnp.stack([scaled_residual(terms, energy_ref, dwell_ref), terms.torque]), terms
+
+    def terms(self, params: Params) -> Terms:
+        """The per-model terms (leaves with the leading axis K) of the decoded design on the
+        second-order fast model."""
+        x = decode(self.cycle, params)
+        one = lambda robot, ws: rl.run(self.rollout_model(robot, ws), RolloutState(design=x)).terms
+        return over_models(one, self.robots, self.workspaces)
+
+    def __call__(self, params: Params):
+        t = self.terms(params)
+        return combine(t, self.scales, self.torque_weight, self.power), t
 
 
 def stack_robots(robots) -> Robot:
@@ -208,24 +214,37 @@ def stack_robots(robots) -> Robot:
     return trees.stack(robots, dtype=float)
 
 
+@jax.tree_util.register_dataclass
 @dataclasses.dataclass(frozen=True)
 class LawObjective:
-    """Objective J of the motion law alone on a fixed path, for one grid: cheaper than
-    ``DesignObjective``, as the tables do not depend on the law.
+    """Objective J of the motion law alone on a fixed path (cheaper than ``DesignObjective``, as the
+    tables do not depend on the law): a pytree like it.
 
-    Called as f(coef, tables, length, tf, dwell, scales, robots) -> (J, per-model terms):
-    ``coef`` (m + 1,) the shaped law's coefficients, ``tables`` stacked over K models (leading axis
-    K, e.g. from ``jaxflex.engine.LawEvaluator`` or ``jaxflex.sweep.sweep_tables``), the path
-    ``length`` [m], tf and dwell [s], ``scales`` (``Scales``), ``robots`` the K models stacked
-    (``stack_robots``) for the second-order fast model, or None for the first-order one."""
+    Data: ``tables`` of the path on the K models (leading axis K, e.g. from
+    ``jaxflex.engine.LawEvaluator``), the path ``length`` [m], ``tf`` and ``dwell`` [s], ``scales``
+    (``Scales``), ``robots`` the K models stacked for the second-order fast model (None: the
+    first-order one). Static: the ``grid``, the shaped law's end-factor ``order``, the torque
+    penalty's weight and the ``power`` of the mean. ``objective(coef) -> (J, terms)`` for the law's
+    coefficients coef (m + 1,)."""
 
-    grid: Grid
-    order: int = 3
-    torque_weight: float = TORQUE_WEIGHT
-    power: float = 1.0
+    tables: Tables
+    length: jax.Array
+    tf: jax.Array
+    dwell: jax.Array
+    scales: Scales
+    robots: Robot | None = None
+    grid: Grid = dataclasses.field(default=Grid(), **_static)
+    order: int = dataclasses.field(default=3, **_static)
+    torque_weight: float = dataclasses.field(default=TORQUE_WEIGHT, **_static)
+    power: float = dataclasses.field(default=1.0, **_static)
 
-    def __call__(self, coef, tables, length, tf, dwell, scales: Scales, robots: Robot | None = None):
-        samples = motion_samples(length, shaped(coef, self.order), tf, self.grid)
-        t = over_models(lambda tab, robot: series_terms(rollout(tab, samples, tf, dwell, self.grid, robot)),
-                        tables, robots)
-        return combine(t, scales, self.torque_weight, self.power), t
+    def __call__(self, coef):
+        samples = motion_samples(self.length, shaped(coef, self.order), self.tf, self.grid)
+
+        def one(tab, robot):
+            model = RolloutModel(robot=robot, tf=self.tf, dwell=self.dwell, grid=self.grid,
+                                 second_order=robot is not None)
+            return rl.run(model, RolloutState(tables=tab, samples=samples)).terms
+
+        t = over_models(one, self.tables, self.robots)
+        return combine(t, self.scales, self.torque_weight, self.power), t

@@ -1,96 +1,92 @@
-"""The design objective's value and gradient as a chain of small compiled programs, model by model.
+"""The design objective's value and gradient through the rollout's stages, model by model.
 
-``loop.value_and_grad`` (reverse mode) on ``objective.DesignObjective`` runs ``value_and_grad`` here
-instead of differentiating the whole objective over the K training models as one program. The
-value and the gradient are the same to round-off. The compilation is shorter, and the same
-programs serve any number of models, any tf and any scales of the same grid.
+``Staged`` is a gradient strategy (``optimize.gradient``): instead of differentiating the whole
+objective over the K training models as one program, it runs each stage of ``jaxflex.rollout``
+(``groups``) as a compiled forward program that also returns what its backward pass needs
+(``jax.vjp``), then the backward programs in reverse order. The value and the gradient are those of
+the one-program gradient to round-off; the compilation is shorter, and the same programs serve any
+number of models, any tf and any scales of the same grid.
 
 How it works, for parameters theta:
 
-- For each training model k, the forward pass runs as four programs. Each returns, beside its
-  outputs, what its backward pass needs (``jax.vjp``):
-  0. the design's path, its tables interpolated from the model's workspace, the motion samples;
-  1. the rollout's first pass (``engine.first_stage``);
-  2. the full model's remainder at the first pass's sites (``simulate.remainders``);
-  3. the second pass (``engine.second_stage``), the model's terms and metrics
-     (``objective.series_terms``).
+- For each training model k, the forward pass runs the stage programs in turn: the first decodes
+  the parameters into the design (``DesignObjective.start``) and builds its path and tables; the
+  last ends with the model's terms and the pair y_k = [r_k, tau_k] (``DesignObjective.head``).
 - ``objective.combine`` depends on model k's energy and dwell terms only through its scaled
   residual r_k (``objective.scaled_residual``), and on its peak torque tau_k only through the
   torque penalty, which is zero while tau_k is within its bound. So one backward pass per model
   (cotangent 1 on r_k) gives dr_k/dtheta, and a second one (on tau_k) runs only for the models
-  above their bound.
+  above their bound. A stage's backward program adds the cotangents of every later stage that
+  reads its outputs.
 - J and its partial derivatives dJ/dr_k, dJ/dtau_k come from ``objective.combine_scaled`` on the
   K models' values (a small program of its own). The gradient is then
   sum_k dJ/dr_k dr_k/dtheta + dJ/dtau_k dtau_k/dtheta, summed on the host in model order.
 
-The models run side by side on the host's cores (``jaxflex.parallel.host_map``). Each model's
+The models run side by side on the host's cores (``jaxflex.runtime.threads.host_map``). Each model's
 programs and sum are the same whatever the threads, so the result does not depend on them. A
-thread holds one model's stored forward pass at a time (about 0.18 GB on the default grid).
+thread holds one model's stored forward pass at a time.
 
-Measured on the studies' design gradient over the 9 box models (6 kg, tf = 0.43 s, default grid,
-hot programs, XLA's default options, 2 cores, no compilation cache):
-- compile: 32.8-36.9 s, against 63.8-68.5 s for the one-program gradient;
-- a step with every model within its torque bound (the 6 kg study's 50 steps): 1.04-1.23 s,
-  against 1.41-1.73 s; with 6 of the 9 models above it (a second backward pass each): 1.9-2.3 s,
-  against 1.49 s;
-- the same value to 2e-11 and gradient to 3e-10 relative (the round-off of two different
-  programs, amplified by the log and the power mean of order 8).
+The same traversal of the stages (``_Chain``) runs the programs, times them one at a time
+(``stage_times``) and compiles them ahead of time from the shapes alone (``Staged.compile_ahead``).
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
-import threading
 import time
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax.flatten_util import ravel_pytree
 
-from jaxflex import compiled, trees
-from jaxflex.designs import design_path
-from jaxflex.engine import first_stage, second_stage
-from jaxflex.parallel import host_map
-from jaxflex.profiles import shaped
-from jaxflex.simulate import motion_samples, remainders
-from jaxflex.workspace import workspace_tables
+from jaxflex import trees
+from jaxflex import rollout as rl
+from jaxflex.runtime import compiled, options
+from jaxflex.runtime.memo import LastCall
+from jaxflex.runtime.threads import host_map
+from jaxflex.rollout import RolloutState
 
-from .objective import combine_scaled, decode, scaled_residual, series_terms
-
-
-def _path_stage(params, robot, cycle, workspace, tf, grid, blend, order):
-    x = decode(cycle, params)
-    path = design_path(cycle, x, blend)
-    return workspace_tables(workspace, robot, path), motion_samples(path.length, shaped(x.coef, order), tf, grid)
+from .objective import DesignObjective, combine_scaled
 
 
-def _forward_path(params, robot, cycle, workspace, tf, grid, blend, order):
-    return jax.vjp(lambda p: _path_stage(p, robot, cycle, workspace, tf, grid, blend, order), params)
+def groups() -> tuple[rl.Stage, ...]:
+    """The stages of a design's rollout as the staged gradient runs them: each stage a program of
+    its own, but the last (the metrics), which runs with the one before it, so that the series is
+    never stored between programs."""
+    stages = rl.between("path and tables")
+    return stages[:-2] + (rl.compose(stages[-2:]),)
 
 
-def _forward_first(tables, samples, tf, grid):
-    return jax.vjp(lambda t, s: first_stage(t, s, tf, grid), tables, samples)
+PROGRAMS = tuple(f"forward: {g.name}" for g in groups()) + tuple(f"backward: {g.name}" for g in groups()[::-1])
 
 
-def _forward_remainder(robot, sites):
-    return jax.vjp(lambda s: remainders(robot, s), sites)
+def _forward(model, inputs, head_data, *, stage, start, head):
+    """One stage's forward pass and its vjp: ``start`` (parameters -> first state) before the stage
+    if given, ``head`` (terms -> (y, terms)) after it if given."""
+    def f(inp):
+        state = inp if start is None else start(model, inp)
+        out = rl.restrict(stage.fn(model, state), stage.writes)
+        return out if head is None else head(out.terms, *head_data)
+    return jax.vjp(f, inputs, has_aux=head is not None)
 
 
-def _forward_last(tables, prep, r_all, samples, tf, dwell, energy_ref, dwell_ref, grid):
-    def last(t, p, r, s):
-        terms = series_terms(second_stage(t, p, r, s, tf, dwell, grid))
-        return jnp.stack([scaled_residual(terms, energy_ref, dwell_ref), terms["torque"]]), terms
-    return jax.vjp(last, tables, prep, r_all, samples, has_aux=True)
+def _total(cotangents: tuple):
+    """The cotangent of a stage's outputs: the one given, or the sum, field by field, of the
+    cotangents of every later stage that reads them (``RolloutState``s; None: not read there)."""
+    if len(cotangents) == 1:
+        return cotangents[0]
+    fields: dict = {}
+    for ct in cotangents:
+        for name, value in zip(ct._fields, ct):
+            if value is not None:
+                fields[name] = value if name not in fields else jax.tree_util.tree_map(jnp.add, fields[name], value)
+    return RolloutState(**fields)
 
 
-def _backward(vjp, cotangent):
-    return vjp(cotangent)
-
-
-def _backward_sum(vjp, a, b):
-    """The backward pass of a stage whose outputs two later stages use: their cotangents added."""
-    return vjp(jax.tree_util.tree_map(jnp.add, a, b))
+def _backward(vjp, cotangents: tuple):
+    return vjp(_total(cotangents))
 
 
 @functools.partial(jax.jit, static_argnames=("torque_weight", "power"))
@@ -100,26 +96,20 @@ def _combined(residuals, torques, scales, torque_weight, power):
 
 
 class _Programs:
-    """The jitted stages, with XLA's options of the process or as hot programs
-    (``compiled.HOT_LOOP``), as ``loop.value_and_grad``'s two programs."""
+    """The forward and backward programs of the stages, with XLA's options of the process
+    (``build="quick"``) or as hot programs (``build="fast"``: ``runtime.options.HOT_LOOP``)."""
 
-    def __init__(self, hot: bool):
-        options = compiled.HOT_LOOP if hot else None
-        jit = lambda fn, *static: jax.jit(fn, static_argnames=static, compiler_options=options)
-        self.path = jit(_forward_path, "grid", "blend", "order")
-        self.first = jit(_forward_first, "grid")
-        self.remainder = jit(_forward_remainder)
-        self.last = jit(_forward_last, "grid")
-        self.back = jit(_backward)
-        self.back_sum = jit(_backward_sum)
+    def __init__(self, build: str):
+        opts = options.build(build)
+        self.forward = jax.jit(_forward, static_argnames=("stage", "start", "head"), compiler_options=opts)
+        self.backward = jax.jit(_backward, compiler_options=opts)
 
     def cache_size(self) -> int:
-        return sum(p._cache_size() for p in (self.path, self.first, self.remainder, self.last, self.back,
-                                             self.back_sum))
+        return self.forward._cache_size() + self.backward._cache_size()
 
 
-_PROGRAMS = {False: _Programs(False), True: _Programs(True)}
-RESIDUAL_ROW = (1.0, 0.0)       # the cotangents of the last stage's outputs (r_k, tau_k)
+_PROGRAMS = {"quick": _Programs("quick"), "fast": _Programs("fast")}
+RESIDUAL_ROW = (1.0, 0.0)       # the cotangents of the head's outputs (r_k, tau_k)
 TORQUE_ROW = (0.0, 1.0)
 
 
@@ -128,160 +118,109 @@ def cache_size() -> int:
     return sum(p.cache_size() for p in _PROGRAMS.values()) + _combined._cache_size()
 
 
-def _unpack(args):
-    robots, cycle, tf, dwell, scales, workspaces = args
-    if workspaces is None:
-        raise ValueError("the staged design gradient takes the models' workspace tables "
-                         "(study.design_objective builds them)")
-    k = np.shape(robots.payload)[0] if np.ndim(robots.payload) else None
-    if k is None:
-        raise ValueError("the design objective takes the models stacked along a leading axis (stack_robots)")
-    return robots, cycle, tf, dwell, scales, workspaces, k
+class _Chain:
+    """One model's forward pass through the stage programs (each stored for its backward pass) and
+    its backward passes. ``call(fn, args, static)`` runs a program: ``compiled.call`` to compute,
+    a timed call (``stage_times``) or ``compiled.lower_ahead`` on shapes (the ahead-of-time chain)."""
+
+    def __init__(self, programs: _Programs, model, params, head_data, call=compiled.call):
+        self.programs, self.call, self.groups = programs, call, groups()
+        state, self.vjps, self.outputs = RolloutState(), [], []
+        last = len(self.groups) - 1
+        for i, g in enumerate(self.groups):
+            inputs = params if i == 0 else rl.restrict(state, g.reads)
+            static = {"stage": g, "start": DesignObjective.start if i == 0 else None,
+                      "head": DesignObjective.head if i == last else None}
+            out = call(programs.forward, (model, inputs, head_data if i == last else None), static)
+            if i == last:
+                self.y, vjp, self.terms = out
+            else:
+                new, vjp = out
+                state = rl.merge(state, new, g.writes)
+                self.outputs.append(new)
+            self.vjps.append(vjp)
+
+    def gradient(self, row):
+        """The gradient of r_k (``RESIDUAL_ROW``) or tau_k (``TORQUE_ROW``): the params' cotangent."""
+        p, call = self.programs, self.call
+        (later,) = call(p.backward, (self.vjps[-1], (row,)))
+        pending = [later]                    # cotangents of the later stages' inputs, latest first
+        for i in range(len(self.groups) - 2, -1, -1):
+            g = self.groups[i]
+            cts = tuple(rl.restrict(ct, g.writes) for ct in pending if any(getattr(ct, f) is not None for f in g.writes))
+            for name in g.writes:
+                if getattr(self.outputs[i], name) is not None and all(getattr(ct, name) is None for ct in cts):
+                    raise ValueError(f"stage {g.name!r} writes {name!r} but no later stage reads it")
+            (ct_in,) = call(p.backward, (self.vjps[i], cts))
+            pending.append(ct_in)
+        return pending[-1]
 
 
 def _at(tree, k: int):
     return jax.tree_util.tree_map(lambda a: a[k], tree)
 
 
-_SLICES: list = []          # [(robots, workspaces, scales), per-model slices] of the last call
-_SLICES_LOCK = threading.Lock()
+_SLICES = LastCall()        # the per-model slices of the last objective's data
 
 
-def _models(robots, workspaces, scales, k: int) -> list:
-    """Each model's robot, workspace and references, sliced from the stacked arguments once per
-    set of arguments: an optimizer calls with the same ones at every step, and slicing every leaf
-    of 9 models took 56-79 ms a step (34 small programs). One set is kept (one more copy of the
-    models' workspaces, 8 MB per model on the default cycle)."""
-    with _SLICES_LOCK:
-        if _SLICES and all(a is b for a, b in zip(_SLICES[0], (robots, workspaces, scales))):
-            return _SLICES[1]
-        slices = [(_at(robots, i), _at(workspaces, i), scales.energy[i], scales.dwell_ms[i]) for i in range(k)]
-        _SLICES[:] = [(robots, workspaces, scales), slices]
-        return slices
+def _slices(objective: DesignObjective, robots, workspaces, scales) -> list:
+    return [(objective.rollout_model(_at(robots, i), _at(workspaces, i)), (scales.energy[i], scales.dwell_ms[i]))
+            for i in range(objective.count)]
+
+
+def _models(objective: DesignObjective) -> list:
+    """Each model's rollout model and references, sliced from the objective's stacked data once per
+    set of data (``runtime.memo.LastCall``): an optimizer calls with the same objective at every
+    step, and slicing every leaf of 9 models takes dozens of small programs. One set is kept (one
+    more copy of the models' workspaces)."""
+    return _SLICES(functools.partial(_slices, objective), objective.robots, objective.workspaces, objective.scales)
 
 
 def _per_model(v, k: int) -> np.ndarray:
     return np.broadcast_to(np.asarray(v, dtype=float), (k,))
 
 
-class _Model:
-    """One model's forward pass (stored for the backward) and its backward passes."""
-
-    def __init__(self, programs: _Programs, f, params, robot, cycle, workspace, tf, dwell, energy_ref, dwell_ref,
-                 call=compiled.call):
-        p = programs
-        self.programs, self.call = programs, call
-        (tables, samples), self.v_path = call(p.path, (params, robot, cycle, workspace, tf),
-                                              {"grid": f.grid, "blend": f.blend, "order": f.order})
-        (prep, sites), self.v_first = call(p.first, (tables, samples, tf), {"grid": f.grid})
-        r_all, self.v_remainder = call(p.remainder, (robot, sites))
-        y, self.v_last, self.terms = call(p.last, (tables, prep, r_all, samples, tf, dwell, energy_ref, dwell_ref),
-                                          {"grid": f.grid})
-        self.residual, self.torque = (float(v) for v in np.asarray(y))
-
-    def gradient(self, row) -> np.ndarray:
-        """The gradient of r_k (``RESIDUAL_ROW``) or tau_k (``TORQUE_ROW``), flattened."""
-        p, call = self.programs, self.call
-        c_tables, c_prep, c_r, c_samples = call(p.back, (self.v_last, jnp.asarray(row, dtype=jnp.float64)))
-        (c_sites,) = call(p.back, (self.v_remainder, c_r))
-        c_tables1, c_samples1 = call(p.back, (self.v_first, (c_prep, c_sites)))
-        (g,) = call(p.back_sum, (self.v_path, (c_tables, c_samples), (c_tables1, c_samples1)))
-        return np.asarray(ravel_pytree(g)[0])
+def _check(objective) -> DesignObjective:
+    if not isinstance(objective, DesignObjective):
+        raise TypeError("the staged gradient runs the stages of a design's rollout: it takes a "
+                        f"jaxflex.optimize.objective.DesignObjective, got {type(objective).__name__}")
+    if objective.workspaces is None:
+        raise ValueError("the staged design gradient takes the models' workspace tables "
+                         "(study.design_objective builds them)")
+    return objective
 
 
-def _run(f, params, args, hot: bool, gradient: bool):
+def _no_args(args) -> None:
+    if tuple(args):
+        raise TypeError("a DesignObjective holds its data: the staged gradient takes no args")
+
+
+def _run(build: str, objective: DesignObjective, params, gradient: bool):
     """The K models' forward passes (and backward passes with ``gradient``), then J."""
-    robots, cycle, tf, dwell, scales, workspaces, k = _unpack(args)
-    _wait_for_compilation(f, hot)
-    programs = _PROGRAMS[bool(hot)]
-    bounds = _per_model(scales.torque_bound, k)
-
-    models = _models(robots, workspaces, scales, k)
+    objective = _check(objective)
+    _wait_for_compilation(build, objective)
+    programs = _PROGRAMS[build]
+    k = objective.count
+    bounds = _per_model(objective.scales.torque_bound, k)
+    models = _models(objective)
 
     def one(i):
-        robot, workspace, energy_ref, dwell_ref = models[i]
-        m = _Model(programs, f, params, robot, cycle, workspace, tf, dwell, energy_ref, dwell_ref)
-        over = m.torque / bounds[i] - 1.0 > 0.0          # the penalty's excess is positive (``combine_scaled``)
+        model, head_data = models[i]
+        chain = _Chain(programs, model, params, head_data)
+        residual, torque = (float(v) for v in np.asarray(chain.y))
+        over = torque / bounds[i] - 1.0 > 0.0          # the penalty's excess is positive (``combine_scaled``)
         grads = None
         if gradient:
-            grads = (m.gradient(RESIDUAL_ROW), m.gradient(TORQUE_ROW) if over else None)
-        return m.residual, m.torque, m.terms, grads
+            row = lambda r: np.asarray(ravel_pytree(chain.gradient(jnp.asarray(r, dtype=jnp.float64)))[0])
+            grads = (row(RESIDUAL_ROW), row(TORQUE_ROW) if over else None)
+        return residual, torque, chain.terms, grads
 
     out = host_map(one, range(k))
     residuals = jnp.asarray([o[0] for o in out], dtype=jnp.float64)
     torques = jnp.asarray([o[1] for o in out], dtype=jnp.float64)
-    value, partials = _combined(residuals, torques, scales, torque_weight=f.torque_weight, power=f.power)
+    value, partials = _combined(residuals, torques, objective.scales, torque_weight=objective.torque_weight,
+                                power=objective.power)
     return value, trees.stack([o[2] for o in out]), partials, [o[3] for o in out]
-
-
-def value(f, params, args, *, hot: bool = False):
-    """(J, per-model terms) of the design objective ``f`` through the staged forward programs
-    alone (no backward pass): ``f(params, *args)`` to round-off."""
-    v, terms, _, _ = _run(f, params, args, hot, gradient=False)
-    return v, terms
-
-
-def value_and_grad(f, params, args, *, hot: bool = False):
-    """((J, per-model terms), dJ/dparams) of the design objective ``f`` (``objective.DesignObjective``)
-    at ``params`` with its ``args`` (``study.design_objective``), as ``jax.value_and_grad(f,
-    has_aux=True)`` gives them, through the staged programs (module docstring)."""
-    v, terms, (d_residual, d_torque), grads = _run(f, params, args, hot, gradient=True)
-    d_residual, d_torque = np.asarray(d_residual), np.asarray(d_torque)
-    flat0, unravel = ravel_pytree(params)
-    total = np.zeros(np.shape(flat0))
-    for i, (g_residual, g_torque) in enumerate(grads):
-        total = total + d_residual[i] * g_residual
-        if g_torque is not None:
-            total = total + d_torque[i] * g_torque
-        elif d_torque[i] != 0.0:
-            raise RuntimeError(f"model {i}: the torque penalty has a gradient but the torque is within its bound")
-    return (v, terms), unravel(jnp.asarray(total, dtype=flat0.dtype))
-
-
-STAGES = ("forward: path and tables", "forward: first pass", "forward: remainder", "forward: last pass",
-          "backward: last pass", "backward: remainder", "backward: first pass", "backward: path and tables")
-
-
-def stage_times(f, params, args, *, hot: bool = False, repeats: int = 5) -> dict:
-    """Where a step of ``value_and_grad`` goes: the median wall time [s] of each of its programs
-    (``STAGES``, in the order they run) on the first training model, each program run to completion
-    before the next starts (``jax.block_until_ready``; in a step the models' programs overlap on the
-    host's cores). The first pass, which may compile, is not counted."""
-    robots, cycle, tf, dwell, scales, workspaces, k = _unpack(args)
-    _wait_for_compilation(f, hot)
-    robot, workspace, energy_ref, dwell_ref = _models(robots, workspaces, scales, k)[0]
-    times: list = []
-
-    def timed(fn, fn_args, static=None):
-        t0 = time.perf_counter()
-        out = jax.block_until_ready(compiled.call(fn, fn_args, static))
-        times.append(time.perf_counter() - t0)
-        return out
-
-    runs = []
-    for _ in range(int(repeats) + 1):
-        times.clear()
-        _Model(_PROGRAMS[bool(hot)], f, params, robot, cycle, workspace, tf, dwell, energy_ref, dwell_ref,
-               call=timed).gradient(RESIDUAL_ROW)
-        runs.append(list(times))
-    return dict(zip(STAGES, np.median(np.asarray(runs[1:]), axis=0).tolist()))
-
-
-# compile_ahead: chains of ahead compilations, one per objective and program set, that value_and_grad
-# waits for (a stage whose compilation has not started yet would otherwise compile twice)
-_CHAINS: dict = {}
-_CHAINS_LOCK = threading.Lock()
-_CHAIN_POOL = ThreadPoolExecutor(max_workers=1, thread_name_prefix="jaxflex-staged")
-
-
-def _wait_for_compilation(f, hot: bool) -> None:
-    """Wait for the chains compiling f's programs; they are then forgotten here (the programs stay
-    in ``compiled``'s registry until ``compiled.release_compiled``)."""
-    with _CHAINS_LOCK:
-        keys = [key for key in _CHAINS if key[0] == f and key[1] == bool(hot)]
-        pending = [_CHAINS.pop(key) for key in keys]
-    for fut in pending:
-        fut.result()
 
 
 def _abstract(tree, drop_lead: bool = False):
@@ -293,26 +232,20 @@ def _abstract(tree, drop_lead: bool = False):
     return jax.tree_util.tree_map(one, tree)
 
 
-def compile_ahead(f, params, args, *, hot: bool = False) -> Future:
-    """Start compiling the staged programs for parameters and arguments of these shapes (arrays or
-    ``jax.ShapeDtypeStruct``; ``compiled.compile_ahead``) in a background thread. Returns a Future
-    of the list of compiled programs; ``value_and_grad`` with the same f and hot waits for it."""
-    robots, cycle, tf, dwell, scales, workspaces, _ = _unpack(args)
-    robot, workspace = _abstract(robots, True), _abstract(workspaces, True)
-    params, tf, dwell = _abstract(params), _abstract(tf), _abstract(dwell)
-    ref = jax.ShapeDtypeStruct((), np.float64)        # a model's reference (``study._canonical`` scales)
-    key = (f, bool(hot), repr(jax.tree_util.tree_structure((params, robot, workspace))) + repr(
-        [(x.shape, x.dtype) for x in jax.tree_util.tree_leaves((params, robot, workspace))]))
-    with _CHAINS_LOCK:
-        if key not in _CHAINS:
-            _CHAINS[key] = _CHAIN_POOL.submit(_compile_chain, _PROGRAMS[bool(hot)], f, params, robot, cycle,
-                                              workspace, tf, dwell, ref)
-        return _CHAINS[key]
+def _key(build: str, objective) -> tuple:
+    """The name of the ahead-of-time chain of an objective's programs (``compiled.submit_chain``):
+    a run waits for the chain of its build and objective structure (a program whose compilation has
+    not started yet would otherwise compile twice)."""
+    return "staged", build, jax.tree_util.tree_structure(objective)
 
 
-def _compile_chain(p: _Programs, f, params, robot, cycle, workspace, tf, dwell, ref) -> list:
-    """Every stage lowered in the order ``value_and_grad`` runs them, each from the output shapes of
-    the ones before (the stored forward passes' structure included), and compiled two at a time
+def _wait_for_compilation(build: str, objective) -> None:
+    compiled.wait_chain(_key(build, objective))
+
+
+def _compile_chain(programs: _Programs, model, params, head_data) -> list:
+    """Every program lowered in the order a step runs them, each from the output shapes of the ones
+    before (the stored forward passes' structure included), and compiled two at a time
     (``compiled.lower_ahead``); returns the compiled programs once all are done."""
     pending = []
 
@@ -321,13 +254,77 @@ def _compile_chain(p: _Programs, f, params, robot, cycle, workspace, tf, dwell, 
         pending.append(fut)
         return out
 
-    (tables, samples), v_path = ahead(p.path, (params, robot, cycle, workspace, tf),
-                                      {"grid": f.grid, "blend": f.blend, "order": f.order})
-    (prep, sites), v_first = ahead(p.first, (tables, samples, tf), {"grid": f.grid})
-    r_all, v_remainder = ahead(p.remainder, (robot, sites))
-    y, v_last, _ = ahead(p.last, (tables, prep, r_all, samples, tf, dwell, ref, ref), {"grid": f.grid})
-    c_tables, c_prep, c_r, c_samples = ahead(p.back, (v_last, jax.ShapeDtypeStruct((2,), np.float64)))
-    (c_sites,) = ahead(p.back, (v_remainder, c_r))
-    c_tables1, c_samples1 = ahead(p.back, (v_first, (c_prep, c_sites)))
-    ahead(p.back_sum, (v_path, (c_tables, c_samples), (c_tables1, c_samples1)))
+    _Chain(programs, model, params, head_data, call=ahead).gradient(jax.ShapeDtypeStruct((2,), np.float64))
     return [fut.result() for fut in pending]
+
+
+@dataclasses.dataclass(frozen=True)
+class Staged:
+    """The staged gradient strategy (module docstring) for a ``DesignObjective``, reverse mode.
+    ``build``: "fast" (the hot programs, ``runtime.options.HOT_LOOP``), "quick" (XLA's options of the
+    process: quicker to compile) or None (the optimizer chooses by its number of steps,
+    ``optimize.gradient.resolved``)."""
+
+    build: str | None = None
+
+    def value(self, objective: DesignObjective, params, args=()):
+        """(J, per-model terms) through the staged forward programs alone (no backward pass):
+        ``objective(params)`` to round-off."""
+        _no_args(args)
+        v, terms, _, _ = _run(self.build or "quick", objective, params, gradient=False)
+        return v, terms
+
+    def value_and_grad(self, objective: DesignObjective, params, args=()):
+        """((J, per-model terms), dJ/dparams), as ``jax.value_and_grad(objective, has_aux=True)``
+        gives them, through the staged programs (module docstring)."""
+        _no_args(args)
+        v, terms, (d_residual, d_torque), grads = _run(self.build or "quick", objective, params, gradient=True)
+        d_residual, d_torque = np.asarray(d_residual), np.asarray(d_torque)
+        flat0, unravel = ravel_pytree(params)
+        total = np.zeros(np.shape(flat0))
+        for i, (g_residual, g_torque) in enumerate(grads):
+            total = total + d_residual[i] * g_residual
+            if g_torque is not None:
+                total = total + d_torque[i] * g_torque
+            elif d_torque[i] != 0.0:
+                raise RuntimeError(f"model {i}: the torque penalty has a gradient but the torque is within its bound")
+        return (v, terms), unravel(jnp.asarray(total, dtype=flat0.dtype))
+
+    def compile_ahead(self, objective: DesignObjective, params, args=()) -> Future:
+        """Start compiling the staged programs for an objective and parameters of these shapes
+        (arrays or ``jax.ShapeDtypeStruct``; ``compiled.compile_ahead``) in a background thread.
+        Returns a Future of the list of compiled programs; the runs of an objective of the same
+        structure wait for it."""
+        _no_args(args)
+        o = _check(objective)
+        build = self.build or "quick"
+        model = o.rollout_model(_abstract(o.robots, True), _abstract(o.workspaces, True))
+        model = dataclasses.replace(model, tf=_abstract(o.tf), dwell=_abstract(o.dwell))
+        ref = jax.ShapeDtypeStruct((), np.float64)        # a model's reference (``study._canonical`` scales)
+        return compiled.submit_chain(_key(build, o), _compile_chain, _PROGRAMS[build], model, _abstract(params),
+                                     (ref, ref))
+
+    def stage_times(self, objective: DesignObjective, params, repeats: int = 5) -> dict:
+        """Where a step goes: the median wall time [s] of each of its programs (``PROGRAMS``, in the
+        order they run) on the first training model, each program run to completion before the next
+        starts (``jax.block_until_ready``; in a step the models' programs overlap on the host's
+        cores). The first pass, which may compile, is not counted."""
+        build = self.build or "quick"
+        objective = _check(objective)
+        _wait_for_compilation(build, objective)
+        model, head_data = _models(objective)[0]
+        times: list = []
+
+        def timed(fn, fn_args, static=None):
+            t0 = time.perf_counter()
+            out = jax.block_until_ready(compiled.call(fn, fn_args, static))
+            times.append(time.perf_counter() - t0)
+            return out
+
+        runs = []
+        for _ in range(int(repeats) + 1):
+            times.clear()
+            _Chain(_PROGRAMS[build], model, params, head_data, call=timed).gradient(
+                jnp.asarray(RESIDUAL_ROW, dtype=jnp.float64))
+            runs.append(list(times))
+        return dict(zip(PROGRAMS, np.median(np.asarray(runs[1:]), axis=0).tolist()))

@@ -24,7 +24,7 @@
 Time: the design gradient compiles in a background thread from the start, while the workspace tables
 are built and the paper sweep runs
 (``loop.compile_gradient_ahead``), and the evaluation sets with every baseline on them, which do
-not depend on the design, are computed beside the optimizer (``jaxflex.parallel.Beside``); only the optimized
+not depend on the design, are computed beside the optimizer (``jaxflex.runtime.threads.Beside``); only the optimized
 design is evaluated after it. The results are those of the sequential order, bit for bit.
 
 Training sets (SPEC 6: a design counts only if its advantage survives model error): ``box``
@@ -53,10 +53,9 @@ from jaxflex import checks
 from jaxflex.blends import DESIGN_BLENDS
 from jaxflex.designs import Design, design, design_path
 from jaxflex.engine import LawEvaluator
-from jaxflex.linearized import _robot_list
 from jaxflex.model import richer
 from jaxflex.model_sets import ModelId, ModelSet, model_set, models_of, place_first_mode_hz
-from jaxflex.parallel import Beside
+from jaxflex.runtime.threads import Beside
 from jaxflex.path import Cycle, make_path
 from jaxflex.problem import Problem, Timing
 from jaxflex.profiles import make_profile, shaped
@@ -65,11 +64,14 @@ from jaxflex.robot import Robot, check_cycle_reachable
 from jaxflex.simulate import Grid, check_grid
 from jaxflex.uncertainty import Box
 from jaxflex.sweep import SweepConfig, default_grid
-from jaxflex.workspace import Workspace, build_workspace, workspace_shapes
+from jaxflex.tables import build_workspaces
+from jaxflex.workspace import Workspace, workspace_shapes
 
 from .baselines import ruckig_samples, shaper_profiles
-from .loop import OptimizerConfig, OptResult, compile_gradient_ahead, is_hot, minimize
+from .gradient import OneProgram, resolved
+from .loop import OptimizerConfig, OptResult, minimize
 from .objective import BLEND_FAMILY, DesignObjective, LawObjective, Params, Scales, decode, encode
+from .staged import Staged
 
 PERTURB_E = (0.95, 1.0, 1.05)
 PERTURB_PAYLOAD = (0.9, 1.0, 1.1)
@@ -465,7 +467,7 @@ def _workspaces(models: ModelSet, cycle: Cycle, progress: bool, memo=None) -> Wo
     bar = Progress(f"workspace tables of {len(models.ids)} model(s)", enabled=progress)
     if memo is None:
         with bar.waiting("building (the blends' design space around both corners)", key="workspace tables"):
-            return jax.block_until_ready(build_workspace(models.robots, cycle))
+            return jax.block_until_ready(build_workspaces(models.robots, cycle))
     with bar.waiting("building or loading (the blends' design space around both corners)",
                      key="workspace tables (memo)"):
         return remembered_workspaces(models.robots, cycle, memo)
@@ -475,7 +477,7 @@ WORKSPACE_MEMO = "workspaces"       # the subdirectory of a study memo that hold
 
 
 def remembered_workspaces(robots: Robot, cycle: Cycle, memo) -> Workspace:
-    """``build_workspace(robots, cycle)`` for a stack of K robots, each model's tables kept in
+    """``tables.build_workspaces(robots, cycle)`` for a stack of K robots, each model's tables kept in
     ``memo``/workspaces as a file named by a digest of the model, the cycle and the code
     (``loop.fingerprint``'s code digest). Models whose file is there are loaded, the others built
     (as one stack) and written: the studies of ``jaxflex reproduce`` train on the same models (the
@@ -486,14 +488,14 @@ def remembered_workspaces(robots: Robot, cycle: Cycle, memo) -> Workspace:
     from .loop import _code_digest
 
     folder = pathlib.Path(memo) / WORKSPACE_MEMO
-    singles = _robot_list(robots)
+    singles = trees.unstack(robots)
     code = _code_digest().encode()
     files = [folder / f"{hashlib.sha1(code + trees.content_key(r, cycle)).hexdigest()}.npz" for r in singles]
     shapes = workspace_shapes(singles[0], cycle)
     tables = [_load_workspace(f, shapes) for f in files]
     missing = [k for k, t in enumerate(tables) if t is None]
     if missing:
-        built = build_workspace(trees.stack([singles[k] for k in missing]), cycle)
+        built = build_workspaces(trees.stack([singles[k] for k in missing]), cycle)
         folder.mkdir(parents=True, exist_ok=True)
         for j, k in enumerate(missing):
             _save_workspace(files[k], jax.tree_util.tree_map(lambda a: a[j], built))
@@ -571,9 +573,8 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
         x0 = init if init is not None else start_design(cycle, n_coef, c.blend)
         if steps > 0:
             shapes = Training(models, cycle, problem.timing, _abstract_scales(len(models.ids), weights),
-                              workspace_shapes(models.robots, cycle))
-            f, args = design_objective(shapes, train_config)
-            compile_gradient_ahead(encode(cycle, x0), args, f=f, hot=is_hot(steps))
+                              workspace_shapes(models.robots, cycle, models=len(models.ids)))
+            resolved(Staged(), steps).compile_ahead(design_objective(shapes, train_config), encode(cycle, x0))
         workspaces = _workspaces(models, cycle, progress, c.memo)
     nominal = nominal_indices(models, payloads)
     sweep = paper_sweep(subset(models, nominal), cycle, tf, SweepConfig(dwell=dwell, grid=grid, progress=progress))
@@ -685,26 +686,24 @@ def train_design(training: Training, init: Params, config: TrainConfig = TrainCo
     unless ``training.workspaces`` holds them): the gradient compiles in about a third of the time
     it takes through the model's table build."""
     _check_training(training.timing.tf, training.timing.dwell, config.steps, config.learning_rate)
-    f, args = design_objective(training, config)
-    return minimize(f, init, args, config.optimizer())
+    return minimize(design_objective(training, config), init, (), config.optimizer(), gradient=Staged())
 
 
-def design_objective(training: Training, config: TrainConfig = TrainConfig()) -> tuple:
-    """(f, args): the design objective on ``training`` (its models, cycle, timing, scales and
-    workspace tables, built here if None; the scales and workspaces may be ``jax.ShapeDtypeStruct``
-    shapes, to compile ahead) with ``config``'s power, law order and blend, and its traced
-    arguments exactly as ``train_design`` hands them to the optimizer, so that
-    ``loop.value_and_grad(params, args, f=f)`` is the optimizer's own value and gradient (one
-    compiled program per grid and number of models)."""
+def design_objective(training: Training, config: TrainConfig = TrainConfig()) -> DesignObjective:
+    """The design objective on ``training`` (its models, cycle, timing, scales and workspace tables,
+    built here if None; the scales and workspaces may be ``jax.ShapeDtypeStruct`` shapes, to compile
+    ahead) with ``config``'s power, law order and blend, exactly as ``train_design`` hands it to the
+    optimizer, so that ``Staged().value_and_grad(objective, params)`` is the optimizer's own value
+    and gradient (one set of compiled programs per grid)."""
     models, cycle, (tf, dwell, grid), scales, workspaces = training
     if grid is None:
         raise ValueError("the design objective needs the timing's grid (jaxflex.sweep.default_grid gives the "
                          "default one)")
     check_grid(grid)
     if workspaces is None:
-        workspaces = build_workspace(models.robots, cycle)
-    args = (models.robots, cycle, _host_scalar(tf), _host_scalar(dwell), _canonical(scales), workspaces)
-    return DesignObjective(grid, blend=config.blend, order=int(config.order), power=float(config.power)), args
+        workspaces = build_workspaces(models.robots, cycle)
+    return DesignObjective(models.robots, cycle, _host_scalar(tf), _host_scalar(dwell), _canonical(scales), workspaces,
+                           grid=grid, blend=config.blend, order=int(config.order), power=float(config.power))
 
 
 def _abstract_scales(k: int, weights) -> Scales:
@@ -729,19 +728,19 @@ def train_law(evaluator: LawEvaluator, scales: Scales, init,
     ``evaluator`` (along its path, at its motion time tf [s], dwell and grid, with its tables) with
     the normalization ``scales``, as ``config`` says (``TrainConfig``; its blend is not used)."""
     _check_training(evaluator.tf, evaluator.dwell, config.steps, config.learning_rate)
-    f, args = law_objective_args(evaluator, scales, config)
-    return minimize(f, jnp.asarray(init, dtype=float), args, config.optimizer())
+    return minimize(law_objective(evaluator, scales, config), jnp.asarray(init, dtype=float), (), config.optimizer(),
+                    gradient=OneProgram())
 
 
-def law_objective_args(evaluator: LawEvaluator, scales: Scales, config: TrainConfig = TrainConfig(label="law")) \
-        -> tuple:
-    """(f, args): the law objective on ``evaluator``'s path, models, tf, dwell, grid and tables, with
-    the normalization ``scales`` and ``config``'s power and law order, and its traced arguments as
-    ``train_law`` hands them to the optimizer."""
+def law_objective(evaluator: LawEvaluator, scales: Scales, config: TrainConfig = TrainConfig(label="law")) \
+        -> LawObjective:
+    """The law objective on ``evaluator``'s path, models, tf, dwell, grid and tables, with the
+    normalization ``scales`` and ``config``'s power and law order, as ``train_law`` hands it to the
+    optimizer."""
     check_grid(evaluator.grid)
-    args = (evaluator.tables, jnp.asarray(evaluator.path.length, dtype=float), _host_scalar(evaluator.tf),
-            _host_scalar(evaluator.dwell), _canonical(scales), evaluator.models.robots)
-    return LawObjective(evaluator.grid, order=int(config.order), power=float(config.power)), args
+    return LawObjective(evaluator.tables, jnp.asarray(evaluator.path.length, dtype=float), _host_scalar(evaluator.tf),
+                        _host_scalar(evaluator.dwell), _canonical(scales), evaluator.models.robots,
+                        grid=evaluator.grid, order=int(config.order), power=float(config.power))
 
 
 def _check_training(tf, dwell, steps, learning_rate):
@@ -754,7 +753,7 @@ def _check_training(tf, dwell, steps, learning_rate):
 def _dwell(aux):
     """What the optimizer records per step beside the objective: the dwell residual [mm] of every
     training model."""
-    return aux["metrics"]["dwell_residual_mm"]
+    return aux.metrics["dwell_residual_mm"]
 
 
 def verify(problem: Problem, trajectories: dict, method: str = "exprb3", full_dt: float | None = None) -> dict:

@@ -22,7 +22,7 @@ if "XLA_FLAGS" not in os.environ:
                                "--xla_cpu_parallel_codegen_split_count=1 --xla_cpu_multi_thread_eigen=false")
 
 # Two xdist workers already keep both cores busy: each runs its engine calls one after another
-# (``jaxflex.parallel``: JAXFLEX_THREADS=1) instead of from a thread per core, which would put four
+# (``jaxflex.runtime.threads``: JAXFLEX_THREADS=1) instead of from a thread per core, which would put four
 # busy threads on two cores (measured: about 60 s less CPU time over the suite, the same results:
 # the threads run the same programs on the same inputs). Set JAXFLEX_THREADS yourself to override.
 os.environ.setdefault("JAXFLEX_THREADS", "1")
@@ -41,9 +41,9 @@ jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 jax.config.update("jax_numpy_rank_promotion", "raise")
 
-from jaxflex import compiled  # noqa: E402  (after the configuration above)
+from jaxflex.runtime import compiled  # noqa: E402  (after the configuration above)
 
-# The workers do not run the CLI's heap trimming (``jaxflex.heap``): it costs kernel time (pages
+# The workers do not run the CLI's heap trimming (``jaxflex.runtime.heap``): it costs kernel time (pages
 # returned and faulted in again) and the suite's time is the tighter budget. Measured in fresh clones
 # on 2 cores: the largest worker peaked at 3.5-3.7 GB resident with it, 3.9-4.1 GB without.
 
@@ -75,7 +75,7 @@ _MAPPING_SHARE = 0.5     # release compiled programs when a worker holds half th
 def _bounded_memory_mappings():
     """XLA:CPU maps every compiled kernel into memory regions of its own, and one xdist worker runs
     hundreds of tests that each compile programs: without care it reaches the kernel's per-process
-    limit on mappings (vm.max_map_count) and LLVM crashes while compiling (jaxflex.compiled). Before
+    limit on mappings (vm.max_map_count) and LLVM crashes while compiling (jaxflex.runtime.compiled). Before
     each test, a worker above half the limit drops its compiled programs; the next test that needs
     one loads it from the session's persistent compilation cache or compiles it again."""
     compiled.release_if_crowded(_MAPPING_SHARE)

@@ -203,8 +203,8 @@ def test_bench_command(tmp_path, capsys):
     g = rec["gradient"]["design"]
     assert g["parameters"] == 12 and g["grad_run_s"] > 0 and g["grad_compile_s"] >= 0
     assert g["grad_temp_gib"] is None or g["grad_temp_gib"] > 0          # XLA temp of the gradient program
-    from jaxflex.optimize.staged import STAGES
-    assert list(g["stages_s"]) == list(STAGES) and all(t > 0 for t in g["stages_s"].values())
+    from jaxflex.optimize.staged import PROGRAMS
+    assert list(g["stages_s"]) == list(PROGRAMS) and all(t > 0 for t in g["stages_s"].values())
     assert "backward: first pass" in out                                # the per-program line is printed
     assert rec["peak_rss_mb"] > 0 and "rollout program" in out
 

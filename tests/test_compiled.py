@@ -1,11 +1,11 @@
 """Compiled programs can be released: a long job (``jaxflex reproduce``) stays below the kernel's
-per-process limit on memory mappings (``jaxflex.compiled``)."""
+per-process limit on memory mappings (``jaxflex.runtime.compiled``)."""
 import os
 import jax
 import jax.numpy as jnp
 import pytest
 
-from jaxflex.compiled import mapping_count, mapping_limit, release_compiled
+from jaxflex.runtime.compiled import mapping_count, mapping_limit, release_compiled
 
 
 def _program(n):
@@ -35,7 +35,7 @@ def test_release_compiled_returns_the_mappings_of_compiled_programs():
     """The mappings of live compiled programs go away with ``release_compiled``. Measured in a fresh
     process (``run_isolated``): in a process that compiled large programs before, LLVM reuses the
     freed code memory and a new program may need no new mappings (seen in a full test run)."""
-    from jaxflex.compiled import run_isolated
+    from jaxflex.runtime.compiled import run_isolated
 
     assert mapping_limit() is None or mapping_limit() > 0
     before, loaded, after = run_isolated(_release_check)
@@ -64,7 +64,7 @@ def _fails():
 def test_run_isolated_compiles_in_a_child_and_keeps_settings_and_errors():
     """``run_isolated`` runs in a fresh process: the parent's mapping count does not grow by the
     child's program, float64 carries over, and the child's exception reaches the caller."""
-    from jaxflex.compiled import run_isolated
+    from jaxflex.runtime.compiled import run_isolated
 
     release_compiled()
     before = mapping_count()
@@ -80,7 +80,7 @@ def test_compile_ahead_gives_the_jitted_result_and_release_forgets_it():
     """A program compiled ahead from shapes alone (``compile_ahead``) is the one ``call`` runs for
     arguments of those shapes, with the jitted function's result; other shapes, other static
     arguments and a released registry go through the jitted function."""
-    from jaxflex import compiled
+    from jaxflex.runtime import compiled
 
     f = jax.jit(lambda x, y, scale: scale * jnp.sin(x) @ y, static_argnames="scale")
     x, y = jnp.linspace(0.0, 1.0, 12).reshape(3, 4), jnp.linspace(-1.0, 2.0, 8).reshape(4, 2)
@@ -102,7 +102,7 @@ def test_lower_ahead_gives_the_output_shapes_at_once_and_the_jitted_program():
     """``lower_ahead`` returns the program's output shapes before it is compiled (what a chain of
     programs lowers the next one from) and registers the compilation as ``compile_ahead`` does:
     ``call`` runs it with the jitted function's result, and the same signature is lowered once."""
-    from jaxflex import compiled
+    from jaxflex.runtime import compiled
 
     f = jax.jit(lambda x, y: (jnp.sin(x) @ y, jnp.sum(x, axis=0)))
     x, y = jnp.linspace(0.0, 1.0, 12).reshape(3, 4), jnp.linspace(-1.0, 2.0, 8).reshape(4, 2)
@@ -124,7 +124,7 @@ def test_lower_ahead_gives_the_output_shapes_at_once_and_the_jitted_program():
 def test_release_if_crowded_releases_only_above_its_share_of_the_mapping_limit():
     """``release_if_crowded`` keeps the compiled programs while the process holds less than its share
     of the mapping limit (a jitted function's cache stays), and releases them above it."""
-    from jaxflex.compiled import release_if_crowded
+    from jaxflex.runtime.compiled import release_if_crowded
 
     f = jax.jit(lambda x: jnp.cos(x) * 3.0)
     f(jnp.ones(3)).block_until_ready()
@@ -136,9 +136,9 @@ def test_release_if_crowded_releases_only_above_its_share_of_the_mapping_limit()
 
 
 def test_host_map_keeps_order_results_and_errors(monkeypatch):
-    """``parallel.host_map`` with several threads equals the sequential loop, item by item, and
+    """``runtime.threads.host_map`` with several threads equals the sequential loop, item by item, and
     raises the first failing item's error; JAXFLEX_THREADS is validated."""
-    from jaxflex import parallel
+    from jaxflex.runtime import threads as parallel
 
     f = jax.jit(lambda a: jnp.cumsum(jnp.sin(a * jnp.arange(200.0))))
     items = [float(k) for k in range(7)]
@@ -161,11 +161,11 @@ def test_host_map_keeps_order_results_and_errors(monkeypatch):
 
 
 def test_beside_returns_the_result_reraises_and_cancels_when_the_caller_fails():
-    """``parallel.Beside``: the background function's result, its exception on ``result()``, and
+    """``runtime.threads.Beside``: the background function's result, its exception on ``result()``, and
     cancellation (the event set, the thread waited for) when the ``with`` block raises."""
     import threading
 
-    from jaxflex.parallel import Beside
+    from jaxflex.runtime.threads import Beside
 
     def work(cancelled, n):
         total = 0
@@ -212,16 +212,16 @@ def test_xdist_groups_take_effect(request):
     ("--xla_backend_optimization_level=0", "none"),
 ])
 def test_build_programs_take_the_hot_options_unless_xla_flags_set_a_level(flags, expected):
-    """``compiled.BUILD`` (the coefficient, table-pose and locked-mode programs): LLVM level 1 and the
+    """``options.BUILD`` (the coefficient, table-pose and locked-mode programs): LLVM level 1 and the
     classic emitters, unless XLA_FLAGS choose an optimization level (the test suite's level 0), read
     once at import, in a fresh process with the given XLA_FLAGS."""
-    code = ("from jaxflex import compiled; print('none' if compiled.BUILD is None else "
-            "'hot' if compiled.BUILD == compiled.HOT_LOOP else 'other')")
+    code = ("from jaxflex.runtime import options; print('none' if options.BUILD is None else "
+            "'hot' if options.BUILD == options.HOT_LOOP else 'other')")
     assert _printed_with_xla_flags(flags, code) == expected
 
 
 def _printed_with_xla_flags(flags: str, code: str) -> str:
-    """What ``code`` prints in a fresh Python process with XLA_FLAGS=flags (``compiled`` reads them
+    """What ``code`` prints in a fresh Python process with XLA_FLAGS=flags (``options`` reads them
     once at import)."""
     import subprocess
     import sys
@@ -237,9 +237,9 @@ def _printed_with_xla_flags(flags: str, code: str) -> str:
     ("--xla_backend_optimization_level=2", "none"),
 ])
 def test_run_once_programs_compile_at_level_0_unless_xla_flags_set_a_level(flags, expected):
-    """``compiled.ONCE`` (the full model's start and end programs, run once or twice per call):
+    """``options.ONCE`` (the full model's start and end programs, run once or twice per call):
     LLVM level 0 and the classic emitters, unless XLA_FLAGS choose an optimization level, read
     once at import, in a fresh process with the given XLA_FLAGS."""
-    code = ("from jaxflex import compiled; o = compiled.ONCE; print('none' if o is None else 'level 0' if o == "
+    code = ("from jaxflex.runtime import options; o = options.ONCE; print('none' if o is None else 'level 0' if o == "
             "{'xla_backend_optimization_level': 0, 'xla_cpu_use_fusion_emitters': False} else 'other')")
     assert _printed_with_xla_flags(flags, code) == expected

@@ -1,11 +1,11 @@
-"""The heap trimming (``jaxflex.heap``) returns freed memory to the system and changes no result."""
+"""The heap trimming (``jaxflex.runtime.heap``) returns freed memory to the system and changes no result."""
 import threading
 
 import numpy as np
 import pytest
 
-from jaxflex import heap
-from jaxflex.compiled import run_isolated
+from jaxflex.runtime import heap
+from jaxflex.runtime.compiled import run_isolated
 
 
 def _fragment_then_trim(n_blocks: int = 6000, size: int = 48 * 1024):

@@ -8,7 +8,8 @@ from jaxflex.path import make_path
 from jaxflex.profiles import make_profile
 from jaxflex.robot import (check_cycle_reachable, check_reachable, cycle_preset, dgm, igm, jacobian, jacobian_dot,
                            make_robot, robot_preset)
-from jaxflex.trajectory import sample_combinations, time_grid, trajectory
+from jaxflex.combinations import sample_combinations
+from jaxflex.trajectory import time_grid, trajectory
 
 
 @pytest.fixture(scope="module", params=["default", "table6"])

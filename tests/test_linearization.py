@@ -21,7 +21,9 @@ import numpy as np
 import pytest
 
 from jaxflex import model as mdl
-from jaxflex.linearized import coeffs_many, evaluate, interpolate, path_pose, path_tables
+from jaxflex import tables
+from jaxflex.linearized import evaluate, interpolate, path_pose
+from jaxflex.tables import coeffs_many, path_tables
 from jaxflex.path import make_path
 from jaxflex.robot import cycle_preset, robot_preset
 from jaxflex.simulate import _frozen, _propagator
@@ -184,7 +186,7 @@ def test_tables_are_fine_enough_for_long_blends_at_the_micrometre_level(monkeypa
     the paper's combinations (tens of um) hardly notice it (0.1 %)."""
     from jaxflex import engine, linearized, trees
     from jaxflex.profiles import shaped
-    from jaxflex.simulate import sample_motion
+    from jaxflex.engine import sample_motion
     from jaxflex.sweep import default_grid
 
     robot, cycle = robot_preset("default", payload=6.0), cycle_preset()
@@ -196,8 +198,8 @@ def test_tables_are_fine_enough_for_long_blends_at_the_micrometre_level(monkeypa
     def residual(nodes):
         monkeypatch.setattr(linearized, "SEGMENT_NODES", nodes)
         poses = jax.jit(lambda r, p: linearized.table_poses(r, p))(robot, path)   # a new function: a fresh trace
-        tables = linearized.Tables(values=linearized.coeffs_many(robot, *poses), breaks=path.breaks)
-        series = engine.run(tables, samples, 0.43, 0.1, robot, grid)   # new table shape: a new trace
+        tab = linearized.Tables(values=tables.coeffs_many(robot, *poses), breaks=path.breaks)
+        series = engine.run(tab, samples, 0.43, 0.1, robot, grid)   # new table shape: a new trace
         return float(engine.metrics_of(trees.stack([series]))["dwell_residual_mm"][0])
 
     default = linearized.SEGMENT_NODES
@@ -211,21 +213,19 @@ def test_coeffs_many_remembers_its_results_by_content(setup):
     """``coeffs_many`` remembers recent results by the content of its inputs: equal robots and poses
     (new arrays) give back the same result; any change of a model parameter or a pose computes
     afresh (a different result), and a cleared memo recomputes the same values bit for bit."""
-    from jaxflex import linearized
-
     robot, path, _ = setup
-    poses = [np.asarray(p) for p in linearized.robot_table_poses(robot, path)]
-    a = linearized.coeffs_many(robot, *poses)
-    assert linearized.coeffs_many(robot, *[p.copy() for p in poses]) is a
+    poses = [np.asarray(p) for p in tables.robot_table_poses(robot, path)]
+    a = tables.coeffs_many(robot, *poses)
+    assert tables.coeffs_many(robot, *[p.copy() for p in poses]) is a
     flat = lambda c: np.concatenate([np.ravel(x) for x in jax.tree_util.tree_leaves(c)])
-    heavier = linearized.coeffs_many(robot.replace(payload=6.06), *poses)
+    heavier = tables.coeffs_many(robot.replace(payload=6.06), *poses)
     assert heavier is not a and not np.allclose(flat(heavier), flat(a), rtol=1e-4, atol=0)
     moved = [p.copy() for p in poses]
     moved[0][3, 1] += 1e-6
-    shifted = linearized.coeffs_many(robot, *moved)
+    shifted = tables.coeffs_many(robot, *moved)
     assert shifted is not a and not np.array_equal(flat(shifted), flat(a))
-    linearized.clear_memo()
-    again = linearized.coeffs_many(robot, *poses)
+    tables.clear_memo()
+    again = tables.coeffs_many(robot, *poses)
     assert again is not a
     for x, y in zip(jax.tree_util.tree_leaves(again), jax.tree_util.tree_leaves(a)):
         np.testing.assert_array_equal(np.asarray(x), np.asarray(y))

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 from jaxflex import model as mdl
+from jaxflex.frequencies import modes_at_point
 from jaxflex.beams import beam_modes, bending_coefficients, bending_roots
 from jaxflex.rigid import rigid_torques
 from jaxflex.robot import cycle_preset, elbows, igm, robot_preset
@@ -386,7 +387,7 @@ def path_points():
 ])
 def test_natural_frequencies_along_path(path_points, payload, k, lo, hi):
     robot = robot_preset("default", payload=payload)
-    freqs = np.stack([mdl.modes_at_point(robot, x) for x in path_points])     # the library's one program
+    freqs = np.stack([modes_at_point(robot, x) for x in path_points])     # the library's one program
     assert np.all(np.asarray(freqs[:, k]) > lo) and np.all(np.asarray(freqs[:, k]) < hi), freqs[:, k]
 
 
@@ -399,10 +400,10 @@ def test_locked_modes_are_mass_normalized(robot6, pose):
 
 def test_singular_or_unreachable_pose_is_rejected(robot6):
     with pytest.raises(ValueError, match="unreachable by arm 1"):
-        mdl.modes_at_point(robot6, jnp.array([-0.7, 0.3]))
+        modes_at_point(robot6, jnp.array([-0.7, 0.3]))
     reach = np.sqrt((L1 + L2) ** 2 - 0.0**2)
     with pytest.raises(ValueError, match="serial singularity of arm 1"):
-        mdl.modes_at_point(robot6, jnp.array([-0.1, reach - 1e-7]))
+        modes_at_point(robot6, jnp.array([-0.1, reach - 1e-7]))
 
 
 def test_static_deflection_is_the_gravity_sag(robot6, pose):

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 
 from jaxflex.designs import design
-from jaxflex.optimize.loop import OptimizerConfig, minimize, value_and_grad_fwd
+from jaxflex.optimize.gradient import value_and_grad_fwd
+from jaxflex.optimize.loop import OptimizerConfig, minimize
 from jaxflex.optimize.objective import DesignObjective, Params, Scales, decode, encode, stack_robots
 from jaxflex.path import make_path
 from jaxflex.robot import cycle_preset, robot_preset
@@ -68,7 +69,7 @@ def test_law_gradient_matches_central_differences_full_6kg_rollout():
     <= 6e-7). The program is the one ``jaxflex optimize --law-only --train nominal`` compiles."""
     from jaxflex.optimize.loop import value_and_grad
     from jaxflex.engine import LawEvaluator
-    from jaxflex.optimize.study import StudyConfig, law_objective_args, training_models
+    from jaxflex.optimize.study import StudyConfig, law_objective, training_models
 
     robot, cycle = robot_preset("default"), cycle_preset()
     models = training_models(robot, [6.0], "nominal")
@@ -78,22 +79,22 @@ def test_law_gradient_matches_central_differences_full_6kg_rollout():
     coef = jnp.asarray([1.0, 1.3, 0.8, 1.1, 0.9, 1.2])
     scales = Scales(jnp.full(1, 1e-3), jnp.full(1, 1e-10), jnp.full(1, jnp.inf), jnp.ones(1))
     evaluator = LawEvaluator(models, path, TF, DWELL, grid)
-    f, args = law_objective_args(evaluator, scales, config)
-    torque = float(value_and_grad(coef, args, f=f)[0][1]["torque"][0])
+    f = law_objective(evaluator, scales, config)
+    torque = float(value_and_grad(f, coef)[0][1].torque[0])
     # a bound 1 % below the peak torque: the penalty term is on, and its size comparable to the rest
     scales = Scales(jnp.full(1, 1e-3), jnp.full(1, 1e-10), jnp.full(1, 0.99 * torque), jnp.ones(1))
-    f, args = law_objective_args(evaluator, scales, config)
-    (value, aux), grad = value_and_grad(coef, args, f=f)
+    f = law_objective(evaluator, scales, config)
+    (value, aux), grad = value_and_grad(f, coef)
     assert np.isfinite(float(value)) and np.all(np.isfinite(np.asarray(grad)))
-    # the objective's rollout (``simulate.rollout``, one traced function inside the gradient) and the
-    # evaluation engine's (the same steps as three programs: first pass, remainder, second pass) give
+    # the objective's rollout (``rollout.run``, one traced function inside the gradient) and the
+    # evaluation engine's (the same stages as three programs: first pass, remainder, last pass) give
     # the same metrics: measured within 6e-14, while between the engine's programs the continuity
     # correction lost or the remainder added twice moves them by 3e-2, the remainder 5 % off by 1.5e-3
     from jaxflex.profiles import shaped
     ev = evaluator(shaped(coef, config.order))
-    for k, v in aux["metrics"].items():
+    for k, v in aux.metrics.items():
         assert float(v[0]) == pytest.approx(float(ev[k][0]), rel=1e-9), (k, float(v[0]), float(ev[k][0]))
-    value_of = lambda c: float(value_and_grad(c, args, f=f)[0][0])
+    value_of = lambda c: float(value_and_grad(f, c)[0][0])
     for i in range(coef.shape[0]):
         fd = float(_central(value_of, coef, i, 1e-5))
         assert abs(float(grad[i]) - fd) <= 1e-5 * max(abs(fd), 1e-2 * float(jnp.abs(grad).max())), \
@@ -101,7 +102,7 @@ def test_law_gradient_matches_central_differences_full_6kg_rollout():
 
 
 def test_forward_mode_gradient_equals_reverse_mode():
-    """``value_and_grad_fwd`` (the optimizer's ``mode="forward"``) gives reverse mode's value and
+    """``value_and_grad_fwd`` (the optimizer's ``OneProgram(mode="forward")``) gives reverse mode's value and
     gradient on a pytree of parameters, with the aux output passed through."""
     def f(p):
         x, y = p["x"], p["y"]
@@ -133,14 +134,15 @@ def test_decode_keeps_blends_within_the_legs_and_encode_inverts_it():
 def test_combine_is_zero_for_the_reference_and_log_scaled():
     """J = 0 when every model equals its reference; 100x less energy and mean-square amplitude (10x
     less amplitude) gives log(1/100); the torque penalty starts at the bound."""
+    from jaxflex.metrics import Terms
     from jaxflex.optimize.objective import combine
 
     scales = Scales(jnp.asarray([2.0, 3.0]), jnp.asarray([5.0, 7.0]), jnp.asarray(10.0))
-    terms = {"energy": scales.energy, "dwell_ms": scales.dwell_ms, "torque": jnp.asarray([9.0, 10.0])}
+    terms = Terms(energy=scales.energy, dwell_ms=scales.dwell_ms, torque=jnp.asarray([9.0, 10.0]), metrics={})
     assert abs(float(combine(terms, scales))) < 1e-15
-    small = dict(terms, energy=scales.energy / 100, dwell_ms=scales.dwell_ms / 100)
+    small = terms._replace(energy=scales.energy / 100, dwell_ms=scales.dwell_ms / 100)
     np.testing.assert_allclose(float(combine(small, scales)), np.log(0.01), rtol=1e-14)
-    over = dict(terms, torque=jnp.asarray([11.0, 10.0]))              # 10 % above the bound
+    over = terms._replace(torque=jnp.asarray([11.0, 10.0]))              # 10 % above the bound
     np.testing.assert_allclose(float(combine(over, scales, torque_weight=1e3)), 1e3 * 0.1**2, rtol=1e-12)
 
 
@@ -193,19 +195,19 @@ def test_minimize_memo_loads_a_finished_run_with_the_same_inputs_only(tmp_path):
 def test_minimize_reuses_its_compilation_for_new_argument_values():
     """The same objective with new traced ``args`` (e.g. another tf or payload set) compiles once,
     and each run converges to its own minimum."""
-    from jaxflex.optimize.loop import value_and_grad
+    from jaxflex.optimize import gradient
 
     def f(p, target):
         return jnp.sum((p - target) ** 2), {}
 
-    before = value_and_grad._cache_size()
+    before = gradient.cache_size()
     cfg = OptimizerConfig(steps=300, learning_rate=0.1, progress=False, patience=300)
     a = minimize(f, jnp.zeros(2), args=(jnp.asarray([1.0, 2.0]),), config=cfg)
     b = minimize(f, jnp.zeros(2), args=(jnp.asarray([-1.0, 0.5]),), config=cfg)
     # the schedule (warm-up, then cosine decay) and another rate and length: still the same program
     minimize(f, jnp.zeros(2), args=(jnp.asarray([0.0, 0.0]),),
              config=OptimizerConfig(steps=30, learning_rate=0.02, progress=False, patience=300, decay=True))
-    assert value_and_grad._cache_size() == before + 1
+    assert gradient.cache_size() == before + 1
     np.testing.assert_allclose(a.params, [1.0, 2.0], atol=1e-2)     # Adam at lr 0.1: within 1e-2
     np.testing.assert_allclose(b.params, [-1.0, 0.5], atol=1e-2)
 
@@ -234,14 +236,14 @@ def test_minimize_does_not_stop_early_on_negative_objectives():
 
 @pytest.mark.xdist_group("commands")
 def test_the_optimizers_own_gradient_matches_central_differences():
-    """The gradient the optimizer steps with (``loop.value_and_grad`` on the design objective exactly
-    as ``train_design`` builds it: reverse mode through the staged programs, ``optimize.staged``;
+    """The gradient the optimizer steps with (``staged.Staged`` on the design objective exactly as
+    ``train_design`` builds it: reverse mode through the staged programs;
     second-order model, tables rebuilt from the workspace, default grid, the default smoothstep
     blends, the studies' power mean of order 8) over two models, the nominal 0.1 kg and 6 kg ones,
     with the torque penalty active on the 6 kg model alone, w.r.t. every design parameter - the six
     blend parameters (d, e of both corners, asymmetric, through the smoothstep's warp solve; n, which
     that family ignores, has a zero gradient) and the six law coefficients - against central
-    differences of the same objective (``staged.value``: the same forward programs). FD step 1e-5
+    differences of the same objective (``Staged.value``: the same forward programs). FD step 1e-5
     on O(1) parameters (the workspace tables are local bicubics, C0 across their 5 mm cells: a 1e-4
     step can straddle a cell boundary of some path node and errs by up to 5e-5, while at 1e-5 the
     rounding noise of the rollout, ~1e-9 of the objective, reaches 5e-5 on the smallest
@@ -252,10 +254,10 @@ def test_the_optimizers_own_gradient_matches_central_differences():
     them. The programs are the ones ``jaxflex optimize --train nominal`` compiles, so the command and
     this check share them."""
     from jaxflex.optimize import staged
-    from jaxflex.optimize.loop import value_and_grad
     from jaxflex.optimize.study import StudyConfig, Training, design_objective, training_models
     from jaxflex.problem import Timing
 
+    gradient = staged.Staged()
     robot, cycle = robot_preset("default"), cycle_preset()
     models = training_models(robot, [0.1, 6.0], "nominal")
     config = StudyConfig().train_config("design")              # the command's objective
@@ -265,17 +267,17 @@ def test_the_optimizers_own_gradient_matches_central_differences():
                               n2=3.2))
     refs = dict(energy=jnp.asarray([1e-4, 1e-3]), dwell_ms=jnp.asarray([1e-11, 1e-10]))
     training = Training(models, cycle, timing, Scales(**refs, torque_bound=jnp.full(2, jnp.inf)))
-    f, args = design_objective(training, config)
-    torque = np.asarray(staged.value(f, p0, args)[1]["torque"])
+    f = design_objective(training, config)
+    torque = np.asarray(gradient.value(f, p0)[1].torque)
     # a bound 1 % below the 6 kg model's peak torque: its penalty term is on, and its size comparable to
     # the rest; the 0.1 kg model stays within its bound
     bound = jnp.asarray([1.01 * torque[0], 0.99 * torque[1]])
-    f, args = design_objective(training._replace(scales=Scales(**refs, torque_bound=bound), workspaces=args[-1]),
-                               config)
-    (value, aux), grad = value_and_grad(p0, args, f=f)
+    f = design_objective(training._replace(scales=Scales(**refs, torque_bound=bound), workspaces=f.workspaces),
+                         config)
+    (value, aux), grad = gradient.value_and_grad(f, p0)
     programs = staged.cache_size()
-    np.testing.assert_allclose(np.asarray(aux["torque"]), torque, rtol=1e-12)
-    value_of = lambda p: float(staged.value(f, p, args)[0])
+    np.testing.assert_allclose(np.asarray(aux.torque), torque, rtol=1e-12)
+    value_of = lambda p: float(gradient.value(f, p)[0])
     assert abs(value_of(p0) - float(value)) <= 1e-12 * abs(float(value))
     for field in ("blend", "coef"):
         x = getattr(p0, field)
@@ -288,23 +290,22 @@ def test_the_optimizers_own_gradient_matches_central_differences():
                 (field, i, g, fd)
     one = training_models(robot, [6.0], "nominal")
     one_scales = Scales(jnp.full(1, 1e-3), jnp.full(1, 1e-10), bound[1:])
-    f1, args1 = design_objective(Training(one, cycle, timing, one_scales), config)
-    (value1, aux1), _ = value_and_grad(p0, args1, f=f1)
-    np.testing.assert_allclose(np.asarray(aux1["torque"]), torque[1:], rtol=1e-12)
+    f1 = design_objective(Training(one, cycle, timing, one_scales), config)
+    (value1, aux1), _ = gradient.value_and_grad(f1, p0)
+    np.testing.assert_allclose(np.asarray(aux1.torque), torque[1:], rtol=1e-12)
     assert staged.cache_size() == programs + 1, "a new number of models compiled more than its combination"
 
 
 @pytest.mark.slow
 def test_the_staged_design_gradient_equals_the_one_program_gradient():
     """The staged value and gradient (``optimize.staged``) against ``jax.value_and_grad`` of the whole
-    design objective as one program (``DesignObjective(staged_gradient=False)``), on three models of
+    design objective as one program (``gradient.OneProgram``), on three models of
     the uncertainty box with the power mean of order 8 and the torque bound active on one of them:
     the same numbers up to the round-off of two different programs (the rollout's ~1e-12, amplified
     by the log and the power mean): value and terms to 1e-9 relative, gradient to 1e-9 of its
     largest component. About a minute (the one-program gradient's compile)."""
-    import dataclasses
-
-    from jaxflex.optimize.loop import value_and_grad
+    from jaxflex.optimize.gradient import OneProgram
+    from jaxflex.optimize.staged import Staged
     from jaxflex.optimize.study import StudyConfig, Training, design_objective, subset, training_models
     from jaxflex.problem import Timing
 
@@ -316,13 +317,13 @@ def test_the_staged_design_gradient_equals_the_one_program_gradient():
                               n2=3.2))
     scales = Scales(jnp.full(3, 1e-3), jnp.full(3, 1e-10), jnp.full(3, jnp.inf))
     training = Training(models, cycle, Timing(TF, DWELL, grid), scales)
-    f, args = design_objective(training, config)
-    torque = np.asarray(value_and_grad(p0, args, f=f)[0][1]["torque"])
+    f = design_objective(training, config)
+    torque = np.asarray(Staged().value_and_grad(f, p0)[0][1].torque)
     bound = jnp.asarray(torque * np.array([1.01, 0.99, 1.01]))
-    f, args = design_objective(training._replace(scales=scales._replace(torque_bound=bound), workspaces=args[-1]),
-                               config)
-    (v, aux), g = value_and_grad(p0, args, f=f)
-    (v1, aux1), g1 = value_and_grad(p0, args, f=dataclasses.replace(f, staged_gradient=False))
+    f = design_objective(training._replace(scales=scales._replace(torque_bound=bound), workspaces=f.workspaces),
+                         config)
+    (v, aux), g = Staged().value_and_grad(f, p0)
+    (v1, aux1), g1 = OneProgram().value_and_grad(f, p0)
     assert abs(float(v) - float(v1)) <= 1e-9 * abs(float(v1))
     for a, b in zip(jax.tree_util.tree_leaves(aux), jax.tree_util.tree_leaves(aux1)):
         np.testing.assert_allclose(np.asarray(a), np.asarray(b), rtol=1e-9, atol=1e-300)
@@ -337,15 +338,16 @@ def test_design_gradient_wrt_blend_parameters_matches_central_differences(tables
     and the rollout vs central differences of the same objective, relative error < 1e-5: with the
     workspace tables (what the optimizer differentiates, ~2 min) and with the exact tables built
     from the model (~5 min to compile)."""
-    from jaxflex.workspace import build_workspace
+    from jaxflex.tables import build_workspaces
 
     robot, cycle = robot_preset("default"), cycle_preset()
     robots = stack_robots([robot.replace(payload=6.0)])
-    ws = build_workspace(robots, cycle) if tables == "workspace" else None
+    ws = build_workspaces(robots, cycle) if tables == "workspace" else None
     grid = default_grid(robot, [TF], DWELL)
     scales = Scales(jnp.full(1, 1e-3), jnp.full(1, 1e-10), jnp.asarray(jnp.inf))
     p0 = encode(cycle, design(d=0.02, e=0.03, n=3.5, coef=[1.0, 1.2, 0.9, 1.0], d2=0.022, e2=0.04, n2=3.2))
-    f = jax.jit(lambda p: DesignObjective(grid, blend="lame")(p, robots, cycle, TF, DWELL, scales, ws))
+    f = jax.jit(lambda p: DesignObjective(robots, cycle, jnp.asarray(TF), jnp.asarray(DWELL), scales, ws, grid=grid,
+                                          blend="lame")(p))
     (_, _), grad = jax.jit(jax.value_and_grad(f, has_aux=True))(p0)
     for i in range(6):
         fd = float(_central(lambda u: f(Params(u, p0.coef))[0], p0.blend, i, 1e-4))
@@ -386,7 +388,7 @@ def test_paper_sweep_on_training_models_matches_run_sweep_and_chunks_do_not_chan
     dw = sweep.metrics["dwell_residual_mm"]
     assert np.all(np.abs(dw[..., 1:] / dw[..., :1] - 1) > 1e-3)
     perturbed = model_set(robot, [6.0], stiffness=PERTURB_E, payload_scale=PERTURB_PAYLOAD)
-    chunked = LawEvaluator(perturbed, sweep.evaluators["lame"].path, TF, DWELL, grid, chunk=5)(make_profile("poly7"))
+    chunked = LawEvaluator(perturbed, sweep.evaluators["lame"].path, TF, DWELL, grid)(make_profile("poly7"))
     same = [4, 0, 2, 6, 8]      # the spanning models' places in the perturbed set (E outer, payload inner)
     assert [perturbed.labels[k] for k in same] == list(models.labels)
     for name, v in chunked.items():
@@ -401,20 +403,21 @@ def test_paper_sweep_on_training_models_matches_run_sweep_and_chunks_do_not_chan
         for name, v in got.items():
             np.testing.assert_array_equal(v, want[name], err_msg=name)
     assert streamed.tables.values.mass.shape[0] == 9
-    with pytest.raises(ValueError, match="chunk"):
-        LawEvaluator(perturbed, sweep.evaluators["lame"].path, TF, DWELL, grid, chunk=0)
+    with pytest.raises(TypeError, match="chunk"):         # no option that does nothing
+        LawEvaluator(perturbed, sweep.evaluators["lame"].path, TF, DWELL, grid, chunk=5)
 
 
 def test_power_mean_objective_tends_to_the_worst_model_and_scales_are_absolute():
     """p = 1 is the weighted mean; a large power tends to the worst model (within w_min^(-1/p));
     the study's scales divide every model of a payload case by the same nominal reference."""
     from jaxflex.model_sets import model_set
+    from jaxflex.metrics import Terms
     from jaxflex.optimize.objective import combine
     from jaxflex.optimize.study import scales_from_metrics
 
     scales = Scales(jnp.ones(3), jnp.ones(3), jnp.asarray(1e9), jnp.asarray([0.5, 0.25, 0.25]))
     r = jnp.asarray([1.0, 4.0, 2.0])                                   # per-model (E + A) / 2 = r
-    terms = {"energy": r, "dwell_ms": r, "torque": jnp.zeros(3)}
+    terms = Terms(r, r, jnp.zeros(3), {})
     np.testing.assert_allclose(float(combine(terms, scales)), np.log(0.5 * 1 + 0.25 * 4 + 0.25 * 2), rtol=1e-14)
     np.testing.assert_allclose(float(combine(terms, scales, power=2.0)),
                                0.5 * np.log(0.5 * 1 + 0.25 * 16 + 0.25 * 4), rtol=1e-13)
@@ -482,9 +485,9 @@ def test_remembered_workspaces_load_the_models_built_before_and_rebuild_the_othe
         return jax.tree_util.tree_map(
             lambda s: jnp.asarray(np.stack([m * (1.0 + np.arange(np.prod(s.shape[1:])).reshape(s.shape[1:]))
                                             for m in payloads]).astype(s.dtype)),
-            workspace_shapes(robots, cyc))
+            workspace_shapes(robots, cyc, models=len(payloads)))
 
-    monkeypatch.setattr(study, "build_workspace", fake_build)
+    monkeypatch.setattr(study, "build_workspaces", fake_build)
     stack = lambda ms: stack_robots([robot.replace(payload=m) for m in ms])
     same = lambda a, b: all(np.array_equal(np.asarray(u), np.asarray(v))
                             for u, v in zip(jax.tree_util.tree_leaves(a), jax.tree_util.tree_leaves(b)))

@@ -18,7 +18,7 @@ import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
-from jaxflex import trajectory as trajectory_mod
+from jaxflex import combinations as combinations_mod
 from jaxflex.blends import BLENDS, make_blend
 from jaxflex.path import make_cycle, make_path
 from jaxflex.profiles import (PROFILES, input_shaped, make_profile, profile_eval, shaped, time_scaled,
@@ -26,7 +26,8 @@ from jaxflex.profiles import (PROFILES, input_shaped, make_profile, profile_eval
 from jaxflex.rigid import rigid_torques
 from jaxflex.robot import (check_cycle_reachable, check_reachable, cycle_preset, dgm, igm, jacobian,
                            jacobian_dot, joint_motion, pose_report, robot_preset)
-from jaxflex.trajectory import arc_motion, check_tf, sample_combinations, task_from_arc, time_grid, trajectory
+from jaxflex.combinations import sample_combinations
+from jaxflex.trajectory import arc_motion, check_tf, task_from_arc, time_grid, trajectory
 
 
 def _settings(n):
@@ -353,10 +354,10 @@ PATH = make_path(CYCLE, "lame", 0.02)
 
 
 def _no_compile(call, match):
-    before = trajectory_mod._combinations_jit._cache_size()
+    before = combinations_mod.cache_size()
     with pytest.raises(ValueError, match=match):
         call()
-    assert trajectory_mod._combinations_jit._cache_size() == before
+    assert combinations_mod.cache_size() == before
 
 
 @_settings(25)

@@ -9,14 +9,17 @@ import pytest
 
 from jaxflex import engine
 from jaxflex import model as mdl
+from jaxflex.frequencies import modes_at_point
 from jaxflex import spectral
-from jaxflex.linearized import path_pose, path_tables
+from jaxflex.linearized import path_pose
+from jaxflex.tables import path_tables
 from jaxflex.metrics import metrics
 from jaxflex.path import make_path
 from jaxflex.profiles import make_profile, shaped
 from jaxflex.rigid import rigid_torques
 from jaxflex.robot import cycle_preset, robot_preset
-from jaxflex.simulate import Grid, sample_motion
+from jaxflex.engine import sample_motion
+from jaxflex.simulate import Grid
 from jaxflex.sweep import Case, _check_finite, default_grid
 
 
@@ -93,7 +96,7 @@ def test_dwell_vibrates_at_locked_natural_frequency(setup):
     fs = 1.0 / float(out.dt_dwell)
     f, p = spectral.welch(jnp.asarray(amp.T), fs, nperseg=amp.shape[0])
     peak = spectral.dominant_frequencies(f, np.asarray(p).sum(axis=0), 1, fmin=5.0)[0]
-    f1 = float(mdl.modes_at_point(robot, jnp.asarray(cycle_preset().place))[0])
+    f1 = float(modes_at_point(robot, jnp.asarray(cycle_preset().place))[0])
     assert abs(peak - f1) <= 1.5, (peak, f1)
 
 

@@ -3,21 +3,22 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxflex import trajectory as trajectory_mod
+from jaxflex import combinations as combinations_mod
 from jaxflex.path import make_cycle
 from jaxflex.robot import cycle_preset, make_robot, robot_preset
 from jaxflex.profiles import make_profile, trapezoid, shaped
-from jaxflex.trajectory import sample_combinations, time_grid
+from jaxflex.combinations import sample_combinations
+from jaxflex.trajectory import time_grid
 
 ROBOT, CYCLE = robot_preset(), cycle_preset()
 T = jnp.linspace(0.0, 0.43, 11)
 
 
 def _no_compile(call, match):
-    before = trajectory_mod._combinations_jit._cache_size()
+    before = combinations_mod.cache_size()
     with pytest.raises(ValueError, match=match):
         call()
-    assert trajectory_mod._combinations_jit._cache_size() == before
+    assert combinations_mod.cache_size() == before
 
 
 @pytest.mark.parametrize("kwargs, match", [
@@ -96,7 +97,8 @@ def compilations():
 def _entry_points():
     """(name, callable taking keyword overrides, {argument: bad values}) for every public entry
     point that compiles."""
-    from jaxflex.designs import DesignSweepConfig, design, sweep_designs
+    from jaxflex.design_sweep import DesignSweepConfig, sweep_designs
+    from jaxflex.designs import design
     from jaxflex.experiments import bench, reproduce
     from jaxflex.model_sets import model_set
     from jaxflex.optimize.cycle_time import cycle_time_study
@@ -186,7 +188,7 @@ def test_configured_entry_points_refuse_a_wrong_configuration(compilations):
     """run_sweep, sweep_designs, train_design and train_law take their options as one configuration
     value: another type there, or a training timing without its grid, is refused before anything
     compiles."""
-    from jaxflex.designs import sweep_designs
+    from jaxflex.design_sweep import sweep_designs
     from jaxflex.model_sets import model_set
     from jaxflex.optimize.objective import Scales, encode
     from jaxflex.optimize.study import TrainConfig, Training, train_design, train_law

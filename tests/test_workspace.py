@@ -5,11 +5,11 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxflex.linearized import coeffs_many, path_tables
 from jaxflex.path import make_path
 from jaxflex.robot import cycle_preset, igm, robot_preset
-from jaxflex.workspace import (MONOMIALS, ORDER0, ORDER1, ORDER2, _PROBES, _combine_all, _order, build_workspace,
-                               coeffs_from_basis, workspace_shapes, workspace_tables)
+from jaxflex.tables import build_workspace, coeffs_many, path_tables
+from jaxflex.workspace import (MONOMIALS, ORDER0, ORDER1, ORDER2, PROBES, coeffs_from_basis, combine_probes,
+                               monomial_order, workspace_shapes, workspace_tables)
 
 
 @pytest.fixture(scope="module")
@@ -29,7 +29,7 @@ def test_workspace_shapes_are_those_of_the_built_workspace(setup):
     assert jax.tree_util.tree_structure(shapes) == jax.tree_util.tree_structure(ws)
     for s, a in zip(jax.tree_util.tree_leaves(shapes), jax.tree_util.tree_leaves(ws)):
         assert (s.shape, s.dtype) == (a.shape, a.dtype)
-    two = workspace_shapes(stack_robots([robot, robot.replace(payload=0.1)]), cycle)
+    two = workspace_shapes(stack_robots([robot, robot.replace(payload=0.1)]), cycle, models=2)
     assert jax.tree_util.tree_structure(two) == jax.tree_util.tree_structure(ws)
     for s, a in zip(jax.tree_util.tree_leaves(two), jax.tree_util.tree_leaves(ws)):
         assert (s.shape, s.dtype) == ((2,) + a.shape, a.dtype)
@@ -64,13 +64,13 @@ def test_coefficients_are_exact_polynomials_in_the_path_derivatives():
     for k in b:
         b[k][4] = e[k][5] - b[k][0] - b[k][1] - b[k][2] - b[k][3] - b[k][5]
         scale = np.max(np.abs(b[k])) + 1e-300
-        dropped = np.delete(b[k], MONOMIALS[_order(k)], axis=0)
+        dropped = np.delete(b[k], MONOMIALS[monomial_order(k)], axis=0)
         assert np.max(np.abs(dropped)) <= 1e-12 * scale, k
     assert set(ORDER0 + ORDER1 + ORDER2) == set(e)
-    probed = at(np.asarray(_PROBES))
-    basis = jax.tree_util.tree_map(lambda v: v[0], _combine_all({k: jnp.asarray(v)[None] for k, v in probed.items()}))
+    probed = at(np.asarray(PROBES))
+    basis = jax.tree_util.tree_map(lambda v: v[0], jax.vmap(combine_probes)({k: jnp.asarray(v)[None] for k, v in probed.items()}))
     for k in b:           # the same monomials as the eight-probe check's
-        np.testing.assert_allclose(basis[k], b[k][np.asarray(MONOMIALS[_order(k)])], rtol=0,
+        np.testing.assert_allclose(basis[k], b[k][np.asarray(MONOMIALS[monomial_order(k)])], rtol=0,
                                    atol=1e-12 * (np.max(np.abs(b[k])) + 1e-300), err_msg=k)
     rng = np.random.default_rng(0)
     qa1s, qa2s = rng.normal(0, 4, (3, 2)), rng.normal(0, 300, (3, 2))             # rad/m, rad/m^2

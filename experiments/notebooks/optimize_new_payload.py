@@ -125,14 +125,15 @@ if QUICK:
     scales = Scales(energy=jnp.asarray([ref["residual_energy"]]),
                     dwell_ms=jnp.asarray([(1e-3 * ref["dwell_residual_mm"]) ** 2 / 2]),
                     torque_bound=jnp.asarray([torque_bound]))
-    law = LawObjective(res.grid)                    # the study's penalty weight; first-order model (robots None)
-    objective = lambda coef: law(coef, tables, path.length, TF, DWELL, scales)
+    # the study's penalty weight; first-order model (no robots)
+    objective = LawObjective(tables, jnp.asarray(path.length), jnp.asarray(TF), jnp.asarray(DWELL), scales,
+                             grid=res.grid)
     result = minimize(objective, jnp.ones(N_COEF),
                       config=OptimizerConfig(steps=STEPS, learning_rate=LEARNING_RATE, patience=40, label="law"))
     coef = np.asarray(result.params)
     best_key = f"{blend}/{best_law} (best paper)"
     laws = {best_key: {k: float(v) for k, v in ref.items()},
-            "optimized": {k: float(np.asarray(v)[0]) for k, v in result.aux["metrics"].items()}}
+            "optimized": {k: float(np.asarray(v)[0]) for k, v in result.aux.metrics.items()}}
     robust = None
 else:
     checkpoint = OUT / f"checkpoint_{PAYLOAD:g}kg_{TF:g}s_{N_COEF}coef.npz"

@@ -9,7 +9,8 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-from jaxflex.designs import Design, DesignSweepConfig, sweep_designs  # noqa: E402
+from jaxflex.design_sweep import DesignSweepConfig, sweep_designs  # noqa: E402
+from jaxflex.designs import Design  # noqa: E402
 from jaxflex.problem import Timing  # noqa: E402
 from jaxflex.robot import cycle_preset, robot_preset  # noqa: E402
 from jaxflex.simulate import Grid  # noqa: E402

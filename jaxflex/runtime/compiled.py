@@ -16,9 +16,11 @@ a long job's memory (an optimization study's about 1.3 GB for 20.7 thousand mapp
 ``compile_ahead`` starts compiling a jitted function for arguments of given shapes in a background
 thread while the caller goes on (XLA releases the interpreter lock while it compiles), and
 ``call`` runs that program once it is ready, or the function itself when nothing was compiled
-ahead for those shapes. The optimization study compiles its gradient (about half a minute cold on 2
-cores) while it builds the paper sweep. The program is the one the jitted function would compile
-for the same abstract arguments, so the results are identical.
+ahead for those shapes. The optimization study compiles its gradient while it builds the paper
+sweep. The program is the one the jitted function would compile for the same abstract arguments,
+so the results are identical. ``submit_chain`` runs a whole chain of such compilations in the
+background under a key that ``wait_chain`` waits for (the staged gradient's programs, each lowered
+from the output shapes of the one before). The compile threads start on first use.
 """
 from __future__ import annotations
 
@@ -31,44 +33,9 @@ from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 import jax
 import numpy as np
 
-from jaxflex import heap
+from jaxflex.runtime import heap
 
 _CONFIG = ("jax_enable_x64", "jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_secs")
-
-# XLA options of the hot programs, compiled once and then run many times: the engine's rollout
-# (thousands of steps, hundreds of runs per study) and the value and gradient of a long optimization
-# (hundreds of steps; ``optimize.loop.is_hot``). They override XLA_FLAGS for these programs only.
-# Measured cold on 2 cores:
-# - LLVM level 1 runs them as fast as level 3 and compiles them sooner (the gradient: 126 ms per
-#   step and 42 s to compile, against 147 ms and 50 s at the default level 3); at level 0 (the test
-#   suite's global setting, which cuts the compile time of its run-once programs by a third) they
-#   would run 2.3-2.9x slower;
-# - XLA's classic elemental emitters instead of the fusion emitters compile the gradient sooner.
-HOT_LOOP = {"xla_backend_optimization_level": 1, "xla_cpu_use_fusion_emitters": False}
-
-_LEVEL_IN_FLAGS = "xla_backend_optimization_level" in os.environ.get("XLA_FLAGS", "")
-
-# XLA options of the other large programs, compiled once per process and run from a few to hundreds
-# of times: the coefficient program of every table build (``linearized.coeffs_many``), the table
-# poses, the locked modes at a point, the paper combinations' kinematics (``trajectory``), and the
-# full model's stepping program and motor motion (``jaxflex.reference``). The hot programs'
-# options, unless XLA_FLAGS choose an optimization level themselves (the test suite's level 0, for
-# its run-once programs). Measured cold on 2 cores: the coefficient program (252 poses per chunk)
-# compiles in 10.5 s instead of 17.3 s at the default level 3 and runs as fast (127 against 121 ms
-# per chunk; at level 0: 7.7 s and 2.2x slower), the locked modes at a point in 4.0 s instead of
-# 6.0 s. (The coefficient program measured then took three probes of the whole residual; its terms
-# one by one, ``model.residual_term``, compile in about 7 s at these options and run a chunk in
-# 32 ms.) On 2026-11-28 (a slow host, three runs each): the full model's stepping program in 17-26 s
-# against 21-39 s, as fast per chunk; the kinematics study (``experiments.kinematics.compute``, six
-# combination programs) 20.3 s against 27.3 s.
-BUILD = None if _LEVEL_IN_FLAGS else HOT_LOOP
-
-# XLA options of large programs run once or twice per call: the full model's start and its outputs
-# at the ends (``jaxflex.reference``). LLVM level 0, unless XLA_FLAGS choose a level themselves.
-# Measured cold on 2 cores on 2026-11-28 (a slow host, three runs each): the start compiles in
-# 8-14 s against 19-32 s, the outputs in 11-18 s against 24-37 s; each runs in milliseconds.
-ONCE = None if _LEVEL_IN_FLAGS else {"xla_backend_optimization_level": 0, "xla_cpu_use_fusion_emitters": False}
-
 
 def mapping_count() -> int | None:
     """Memory mappings of this process (Linux; None elsewhere)."""
@@ -120,9 +87,39 @@ def release_if_crowded(share: float = MAPPING_SHARE) -> bool:
 _AHEAD: dict = {}                   # signature -> Future of a compiled program (compile_ahead)
 _AHEAD_LOCK = threading.Lock()
 _AHEAD_OUT: dict = {}               # signature -> the program's output shapes (lower_ahead)
-# two compilations at a time: XLA compiles without the interpreter lock, so a chain of programs
-# lowered one after the other (``lower_ahead``) compiles on both cores
-_AHEAD_POOL = ThreadPoolExecutor(max_workers=2, thread_name_prefix="jaxflex-compile")
+_POOLS: dict = {}                   # name -> ThreadPoolExecutor, created on first use
+_POOLS_LOCK = threading.Lock()
+_CHAINS: dict = {}                  # key -> Future of a chain of compilations (submit_chain)
+
+
+def _pool(name: str) -> ThreadPoolExecutor:
+    """The thread pool ``name``, created on first use: "compile" runs two compilations at a time (XLA
+    compiles without the interpreter lock, so a chain of programs lowered one after the other,
+    ``lower_ahead``, compiles on both cores); "chain" runs one chain of lowerings at a time."""
+    with _POOLS_LOCK:
+        if name not in _POOLS:
+            _POOLS[name] = ThreadPoolExecutor(max_workers=2 if name == "compile" else 1,
+                                              thread_name_prefix=f"jaxflex-{name}")
+        return _POOLS[name]
+
+
+def submit_chain(key, fn, *args) -> Future:
+    """Run ``fn(*args)`` (a chain of ``lower_ahead`` calls) in a background thread under ``key``,
+    unless a chain with that key was submitted and not yet waited for; returns its Future."""
+    pool = _pool("chain")
+    with _AHEAD_LOCK:
+        if key not in _CHAINS:
+            _CHAINS[key] = pool.submit(fn, *args)
+        return _CHAINS[key]
+
+
+def wait_chain(key) -> None:
+    """Wait for the chain submitted under ``key``, if any, and forget it (its programs stay in the
+    registry of ahead compilations until ``release_compiled``)."""
+    with _AHEAD_LOCK:
+        pending = _CHAINS.pop(key, None)
+    if pending is not None:
+        pending.result()
 
 
 _DTYPE_STR: dict = {}
@@ -157,7 +154,7 @@ def compile_ahead(fn, args: tuple, static: dict | None = None) -> Future:
     key = _signature(fn, args, static)
     with _AHEAD_LOCK:
         if key not in _AHEAD:
-            _AHEAD[key] = _AHEAD_POOL.submit(lambda: fn.lower(*args, **static).compile())
+            _AHEAD[key] = _pool("compile").submit(lambda: fn.lower(*args, **static).compile())
         return _AHEAD[key]
 
 
@@ -176,7 +173,7 @@ def lower_ahead(fn, args: tuple, static: dict | None = None) -> tuple[object, Fu
     lowered = fn.lower(*args, **static)
     with _AHEAD_LOCK:
         if key not in _AHEAD:
-            _AHEAD[key] = _AHEAD_POOL.submit(lowered.compile)
+            _AHEAD[key] = _pool("compile").submit(lowered.compile)
             _AHEAD_OUT[key] = lowered.out_info
         return lowered.out_info, _AHEAD[key]
 
@@ -203,7 +200,7 @@ def _call_configured(config: dict, trim: bool, fn, args, kwargs):
 
 def run_isolated(fn, /, *args, **kwargs):
     """``fn(*args, **kwargs)`` in a fresh Python process (spawned, with this process's float64 and
-    persistent-cache settings and its heap trimming, ``jaxflex.heap``), returning its result or
+    persistent-cache settings and its heap trimming, ``jaxflex.runtime.heap``), returning its result or
     raising its exception. The child's compiled programs and memory mappings end with it. ``fn``
     must be importable (a module-level function), its arguments and result picklable; the child's
     output goes to this process's stdout/stderr."""

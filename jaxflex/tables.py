@@ -1,0 +1,131 @@
+"""Coefficient tables on concrete values: every table build through one shared compiled program.
+
+The linearization coefficients (``linearized.pose_coeffs``) are the costly part of a rollout to
+compile. Here they are evaluated on the host's concrete poses through one compiled program of
+fixed shape (``COEFF_CHUNK`` poses per call, ``jaxflex.runtime.options.BUILD``), shared by every
+table builder: the path tables of the engine's evaluators (``path_tables``), the paper sweep's
+stacked tables and the workspace tables of the design gradient (``build_workspace``). The chunks
+run side by side on the host's cores (``jaxflex.runtime.threads.host_map``); every chunk is the
+same program on its own inputs, so the result does not depend on the threads. Recent results are
+remembered by the content of their inputs (``jaxflex.runtime.memo.ContentMemo``).
+
+Functions taking ``robot`` take one robot; those taking ``robots`` a stack of K robots (leaves with
+a leading axis K, ``optimize.objective.stack_robots`` or ``model_sets.ModelSet.robots``).
+"""
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from jaxflex import trees
+from jaxflex.linearized import SEGMENT_NODES, Coeffs, Tables, coeffs_at, table_poses
+from jaxflex.path import Cycle, Path
+from jaxflex.robot import Robot, check_reachable, igm
+from jaxflex.runtime.memo import ContentMemo
+from jaxflex.runtime.options import BUILD
+from jaxflex.runtime.threads import host_map
+from jaxflex.workspace import PROBES, FIELDS, Workspace, combine_probes, grid_points, grid_shape
+
+COEFF_CHUNK = sum(SEGMENT_NODES)   # poses per call of the shared coefficient program: one path table
+                                   # is one call, larger sets (sweeps, workspaces) a few (padding costs)
+MEMO_BYTES = 256 * 2**20           # the remembered results' total size: the oldest go first beyond it
+
+_coeffs_chunk = jax.jit(coeffs_at, compiler_options=BUILD)
+_table_poses = jax.jit(table_poses, compiler_options=BUILD)        # one program per blend family
+_grid_angles = jax.jit(lambda robot, points: jax.vmap(lambda x: igm(robot, x))(points))
+_combine_all = jax.jit(jax.vmap(combine_probes))
+_MEMO = ContentMemo(MEMO_BYTES)
+
+
+def clear_memo() -> None:
+    """Forget the remembered coefficients (they only cost memory: at most ``MEMO_BYTES``)."""
+    _MEMO.clear()
+
+
+def _coeffs(robots: list, poses: list) -> list:
+    """The coefficients of each robot (a list) at its poses (qa, qa1, qa2: (N, 2) each), every chunk
+    of every robot in one ``host_map``."""
+    n = poses[0][0].shape[0]
+    pad = -n % COEFF_CHUNK
+    jobs = []
+    for r, qs in zip(robots, poses):
+        qs = [np.concatenate([q, np.repeat(q[:1], pad, axis=0)]) for q in qs]    # valid filler poses
+        r = jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype=float), r)
+        jobs += [(r, *(q[i:i + COEFF_CHUNK] for q in qs)) for i in range(0, n + pad, COEFF_CHUNK)]
+    parts = host_map(lambda job: _coeffs_chunk(*job), jobs)
+    per = (n + pad) // COEFF_CHUNK
+    return [trees.concatenate(parts[k * per:(k + 1) * per], length=n) for k in range(len(robots))]
+
+
+def coeffs_many(robot: Robot, qa, qa1, qa2, *, remember: bool = True) -> Coeffs:
+    """``linearized.coeffs_at`` for one robot at any number N of poses (qa, qa1, qa2: (N, 2) each)
+    through the shared coefficient program. Not traceable (concrete arrays). Recent results are
+    remembered by the content of the inputs (``trees.content_key``): the same robot and poses again
+    (a study's tables rebuilt by the next study) return the same arrays without running the program;
+    ``remember=False`` neither looks them up nor keeps the result (large one-off sets)."""
+    def build(robot, qa, qa1, qa2):
+        return _coeffs([robot], [[np.asarray(a, dtype=float) for a in (qa, qa1, qa2)]])[0]
+    return _MEMO(build, robot, qa, qa1, qa2) if remember else build(robot, qa, qa1, qa2)
+
+
+def coeffs_stacked(robots: Robot, qa, qa1, qa2, *, remember: bool = True) -> Coeffs:
+    """``coeffs_many`` for a stack of K robots: poses (K, N, 2) (each robot its own) or (N, 2)
+    (shared); every leaf of the result has a leading axis K."""
+    def build(robots, qa, qa1, qa2):
+        singles = trees.unstack(robots)
+        poses = [np.asarray(a, dtype=float) for a in (qa, qa1, qa2)]
+        per_robot = [[p[k] if p.ndim == 3 else p for p in poses] for k in range(len(singles))]
+        return trees.stack(_coeffs(singles, per_robot))
+    return _MEMO(build, robots, qa, qa1, qa2) if remember else build(robots, qa, qa1, qa2)
+
+
+def robot_table_poses(robot: Robot, path: Path):
+    """``linearized.table_poses`` of one robot on concrete values through the shared compiled
+    program (one per blend family)."""
+    return _table_poses(robot, path)
+
+
+def path_tables(robot: Robot, path: Path, *, remember: bool = True) -> Tables:
+    """``linearized.build_tables`` on concrete arrays through the shared coefficient program
+    (``coeffs_many``, which remembers recent results unless ``remember`` is False): no new
+    compilation of the model per caller."""
+    return Tables(values=coeffs_many(robot, *robot_table_poses(robot, path), remember=remember), breaks=path.breaks)
+
+
+def _workspaces(robot: Robot, singles: list, cycle: Cycle, spacing: float, stacked: bool) -> Workspace:
+    """The workspace tables of ``robot`` (one, or a stack of them with ``stacked``), whose single
+    robots are ``singles``."""
+    shape = grid_shape(cycle, spacing)
+    nu, nv = shape
+    pts = np.asarray(grid_points(cycle, shape)).reshape(-1, 2)
+    check_reachable(singles[0], pts, "workspace grid point")
+    qa = np.stack([np.asarray(_grid_angles(r, jnp.asarray(pts))) for r in singles])      # (K, N, 2)
+    n, p = pts.shape[0], len(PROBES)
+    probes = np.tile(PROBES, (n, 1))                                                     # (N * 5, 4)
+    if stacked:
+        ev = coeffs_stacked(robot, np.repeat(qa, p, axis=1), probes[:, :2], probes[:, 2:])
+    else:
+        ev = coeffs_many(singles[0], np.repeat(qa[0], p, axis=0), probes[:, :2], probes[:, 2:])
+    lead = (len(singles),) if stacked else ()
+    ev = {k: v.reshape((-1, p) + v.shape[len(lead) + 1:]) for k, v in ev._asdict().items() if k in FIELDS}
+    values = {k: v.reshape(lead + (nu, nv) + v.shape[1:]) for k, v in _combine_all(ev).items()}
+    step = jnp.stack([cycle.l / (nu - 1), cycle.h / (nv - 1)])
+    ws = Workspace(values=values, origin=jnp.asarray(cycle.pick, dtype=float), axes=jnp.asarray(cycle.basis), step=step)
+    if not stacked:
+        return ws
+    k = len(singles)
+    return ws._replace(origin=jnp.broadcast_to(ws.origin, (k, 2)), axes=jnp.broadcast_to(ws.axes, (k, 2, 2)),
+                       step=jnp.broadcast_to(ws.step, (k, 2)))
+
+
+def build_workspace(robot: Robot, cycle: Cycle, spacing: float = 0.005) -> Workspace:
+    """The workspace tables of one robot (``jaxflex.workspace``): the pose functions tabulated over
+    the cycle's rectangle with about ``spacing`` [m] between grid points. Raises ValueError when a
+    grid point is unreachable or singular (before any compilation)."""
+    return _workspaces(robot, [robot], cycle, spacing, stacked=False)
+
+
+def build_workspaces(robots: Robot, cycle: Cycle, spacing: float = 0.005) -> Workspace:
+    """``build_workspace`` for a stack of K robots: a Workspace whose leaves have a leading axis K."""
+    return _workspaces(robots, trees.unstack(robots), cycle, spacing, stacked=True)
