@@ -73,8 +73,9 @@ def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwe
     from jaxflex.optimize.gradient import OneProgram
     from jaxflex.optimize.objective import encode
     from jaxflex.optimize.staged import Staged
-    from jaxflex.optimize.study import (StudyConfig, Training, design_objective, law_objective, training_models,
-                                        training_weights)
+    from jaxflex.optimize.config import StudyConfig
+    from jaxflex.optimize.training import (Training, design_objective, law_objective, training_models,
+                                           training_weights)
     from jaxflex.problem import Timing
 
     robot, cycle = robot_preset("default"), cycle_preset()
@@ -89,7 +90,7 @@ def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwe
     ws = jax.block_until_ready(build_workspaces(models.robots, cycle))
     ws_s = time.perf_counter() - t0
     timing = Timing(tf, dwell, grid)
-    f = design_objective(Training(models, cycle, timing, scales, ws), c.train_config("bench"))
+    f = design_objective(Training(models, cycle, timing, scales, ws), c.train.with_optimizer(label="bench"))
     params = encode(cycle, design(0.0245, 0.03, 3.2, coef, e2=0.035, n2=3.4))
     build = "quick" if quick else "fast"
     staged = Staged(build=build)
@@ -99,12 +100,12 @@ def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwe
     out["design"]["stages_s"] = staged.stage_times(f, params, repeats=repeats)
     if not quick:
         path = make_path(cycle, "lame", 0.025)
-        f_law = law_objective(LawEvaluator(models, path, tf, dwell, grid), scales, c.train_config("bench"))
+        f_law = law_objective(LawEvaluator(models, path, tf, dwell, grid), scales, c.train.with_optimizer(label="bench"))
         out["law"] = _time_value_and_grad(f_law, coef, OneProgram(build="fast"), repeats, True)
         box = training_models(robot, [payload], "box")
         k = len(box.ids)
         f_box = design_objective(Training(box, cycle, timing, _scales(k, None), build_workspaces(box.robots, cycle)),
-                                 c.train_config("bench"))
+                                 c.train.with_optimizer(label="bench"))
         out["design_box"] = _time_value_and_grad(f_box, params, Staged(build="fast"), repeats, False)
         out["design_box"]["models"] = k
     return out

@@ -1,17 +1,24 @@
-"""The ``jaxflex`` command line (SPEC 7), outside the core library: each subcommand is a thin call into
+"""The ``jaxflex`` command line (docs/conventions.md#file-formats), outside the core library: each subcommand is a thin call into
 the experiment scripts of this package (``jaxflex.experiments``), which call the library."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import sys
 import traceback
 
+from jaxflex.names import DESIGN_BLENDS, PRESETS
+from jaxflex.optimize.config import ROBUST_POWER, TRAINING_SETS, StudyConfig
+from jaxflex.uncertainty import Box
+
+STUDY = StudyConfig()       # the defaults of ``jaxflex optimize`` (this module imports no JAX)
+
 
 def _add_common(p, preset=True):
     if preset:
-        p.add_argument("--preset", default="default", choices=["default", "table6"],
-                       help="robot geometry preset (SPEC 2; default: %(default)s)")
+        p.add_argument("--preset", default="default", choices=PRESETS,
+                       help="robot geometry preset (docs/conventions.md#frames-and-geometry; default: %(default)s)")
     p.add_argument("--json", metavar="PATH", help="also write the results as JSON to PATH")
 
 
@@ -46,7 +53,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("sweep", help="simulate the 12 path-profile combinations (paper Section 4)",
                        description="Inverse elastodynamic simulation (perfect controller) of the 12 "
                                    "blend x motion-law combinations for one payload and motion time, "
-                                   "then a dwell at the place pose; every SPEC 5 metric per run.")
+                                   "then a dwell at the place pose; every metric of docs/conventions.md#metrics "
+                                   "per run.")
     _add_common(p)
     p.add_argument("--payload", type=float, default=6.0, help="payload mass [kg] (default: %(default)s)")
     p.add_argument("--tf", type=float, default=0.43, help="motion time [s] (default: %(default)s)")
@@ -60,7 +68,8 @@ def build_parser() -> argparse.ArgumentParser:
                                    "the whole rollout, Adam) of a design - the blend parameters of both "
                                    "corners (default family: smoothstep, G4 joins) and a monotone motion "
                                    "law - minimizing the worst absolute residual vibration at the place "
-                                   "point over a grid of models of the uncertainty box (SPEC 6); compared "
+                                   "point over a grid of models of the uncertainty box "
+                                   "(docs/conventions.md#uncertainty-box); compared "
                                    "with the best of the 12 paper combinations, its ZV/ZVD input shaping "
                                    "and a Ruckig jerk-limited profile at equal time, on the nominal, "
                                    "perturbed (E +-5 %%, payload +-10 %%) and damped models and on random "
@@ -69,40 +78,39 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--payload", type=float, nargs="+", default=[6.0],
                    help="payload mass(es) [kg]; several give one design robust over them (default: 6)")
     p.add_argument("--tf", type=float, default=0.43, help="motion time [s] (default: %(default)s)")
-    p.add_argument("--steps", type=int, default=50,           # StudyConfig.steps (no jax import here)
+    p.add_argument("--steps", type=int, default=STUDY.train.optimizer.steps,
                    help="optimizer steps (default: %(default)s)")
-    p.add_argument("--coef", type=int, default=6, help="motion-law coefficients (default: %(default)s)")
-    p.add_argument("--lr", type=float, default=0.05,
+    p.add_argument("--coef", type=int, default=STUDY.n_coef, help="motion-law coefficients (default: %(default)s)")
+    p.add_argument("--lr", type=float, default=STUDY.train.optimizer.learning_rate,
                    help="Adam learning rate (linear warm-up over the first 10 %% of the steps, then "
                         "a cosine decay to a tenth; default: %(default)s)")
-    p.add_argument("--train", default="box", choices=["box", "nominal", "spanning", "perturbed"],
+    p.add_argument("--train", default=STUDY.training_set, choices=TRAINING_SETS,
                    help="training models per payload: box (default: a --box-points^2 grid over E and the "
                         "payload mass of the uncertainty box); nominal; spanning (nominal plus the 4 "
                         "corners E x0.95/1.05, payload x0.9/1.1); perturbed (all 9: E x0.95/1/1.05, "
                         "payload x0.9/1/1.1)")
-    p.add_argument("--blend", default="smoothstep",
-                   choices=["smoothstep", "lame", "polar", "polar_g3", "polar_g4"],
+    p.add_argument("--blend", default=STUDY.train.blend, choices=DESIGN_BLENDS,
                    help="blend family of the optimized path (default: %(default)s, G4 joins)")
     p.add_argument("--objective", default="worst", choices=["worst", "relative"],
                    help="worst (default): smooth worst case (power mean of order 8) of the absolute "
                         "residuals over the training models; relative: weighted mean of each model's "
                         "residual divided by the best paper combination's on that model (the old objective)")
-    p.add_argument("--box-young", type=float, default=0.05, metavar="REL",
+    p.add_argument("--box-young", type=float, default=STUDY.box.young, metavar="REL",
                    help="uncertainty box: Young's modulus half-width, relative (default: %(default)s)")
-    p.add_argument("--box-payload", type=float, default=0.10, metavar="REL",
+    p.add_argument("--box-payload", type=float, default=STUDY.box.payload, metavar="REL",
                    help="uncertainty box: payload half-width, relative (default: %(default)s)")
-    p.add_argument("--box-damping", type=float, nargs=2, default=[0.0, 0.01], metavar=("LOW", "HIGH"),
-                   help="uncertainty box: range of the damping ratio at the first mode (default: 0 0.01)")
-    p.add_argument("--box-length", type=float, default=0.0005, metavar="M",
+    p.add_argument("--box-damping", type=float, nargs=2, default=list(STUDY.box.damping), metavar=("LOW", "HIGH"),
+                   help="uncertainty box: range of the damping ratio at the first mode (default: %(default)s)")
+    p.add_argument("--box-length", type=float, default=STUDY.box.length, metavar="M",
                    help="uncertainty box: link-length half-width [m] (default: %(default)s)")
-    p.add_argument("--box-rotor", type=float, default=0.10, metavar="REL",
+    p.add_argument("--box-rotor", type=float, default=STUDY.box.rotor, metavar="REL",
                    help="uncertainty box: rotor-inertia half-width, relative (default: %(default)s)")
-    p.add_argument("--box-points", type=int, default=3,
+    p.add_argument("--box-points", type=int, default=STUDY.box_points,
                    help="training grid points per axis (E, payload) of the box, odd (default: %(default)s)")
-    p.add_argument("--box-samples", type=int, default=200,
+    p.add_argument("--box-samples", type=int, default=STUDY.box_samples,
                    help="random models of the box every trajectory is evaluated on after training "
                         "(0: none; default: %(default)s)")
-    p.add_argument("--richer-modes", type=int, default=3,
+    p.add_argument("--richer-modes", type=int, default=STUDY.richer_modes,
                    help="modes of each kind added to every link of the richer validation model (every "
                         "link in bending and tension) every trajectory is evaluated on (0: none; "
                         "default: %(default)s)")
@@ -194,22 +202,14 @@ def main(argv=None) -> int:
         elif args.command == "optimize":
             from jaxflex.experiments import optimize
 
-            from jaxflex.optimize.study import ROBUST_POWER
-            from jaxflex.uncertainty import Box
-
-            worst = args.objective == "worst"
-            study = dict(steps=args.steps, n_coef=args.coef, train=args.train, learning_rate=args.lr,
-                         blend=args.blend, absolute=worst, robust_power=ROBUST_POWER if worst else 1.0,
-                         box=Box(args.box_young, args.box_payload, tuple(args.box_damping), args.box_length,
-                                 args.box_rotor).checked(),
-                         box_points=args.box_points, box_samples=args.box_samples, richer_modes=args.richer_modes)
+            config = study_config(args)
             if args.cycle_time is not None:
                 tfs = tuple(args.cycle_time) or (0.43, 0.40, 0.37, 0.34, 0.31)
                 optimize.run_cycle_time(args.preset, args.payload[0], args.tf, tfs, out=args.out,
-                                        json_path=args.json, **study)
+                                        json_path=args.json, config=config)
             else:
                 optimize.run(args.preset, tuple(args.payload), args.tf, out=args.out, json_path=args.json,
-                             verify=args.verify, free_path=args.free_path, **study)
+                             verify=args.verify, config=dataclasses.replace(config, free_path=args.free_path))
         elif args.command == "bench":
             from jaxflex.experiments import bench
 
@@ -235,10 +235,21 @@ def main(argv=None) -> int:
     return 0
 
 
+def study_config(args) -> StudyConfig:
+    """The ``StudyConfig`` of ``jaxflex optimize``'s arguments (validated when the study starts)."""
+    worst = args.objective == "worst"
+    return dataclasses.replace(
+        STUDY.with_optimizer(steps=args.steps, learning_rate=args.lr).with_train(
+            blend=args.blend, power=ROBUST_POWER if worst else 1.0),
+        n_coef=args.coef, training_set=args.train, absolute=worst,
+        box=Box(args.box_young, args.box_payload, tuple(args.box_damping), args.box_length, args.box_rotor).checked(),
+        box_points=args.box_points, box_samples=args.box_samples, richer_modes=args.richer_modes)
+
+
 HUGEPAGES = "glibc.malloc.hugetlb=1"
 
 
-def _hugepages_env() -> dict | None:
+def hugepages_env() -> dict | None:
     """The environment to re-run the command in with glibc's malloc on transparent huge pages, or
     None when that does not apply: JAXFLEX_HUGEPAGES=0, not Linux with glibc, huge pages off
     (``/sys/kernel/mm/transparent_hugepage/enabled`` is "never"), or already set in GLIBC_TUNABLES.
@@ -264,10 +275,10 @@ def _hugepages_env() -> dict | None:
     return dict(os.environ, GLIBC_TUNABLES=f"{tunables}:{HUGEPAGES}" if tunables else HUGEPAGES)
 
 
-def entry() -> None:  # pragma: no cover - the console script; tests call main() and _hugepages_env()
+def entry() -> None:  # pragma: no cover - the console script; tests call main() and hugepages_env()
     """The ``jaxflex`` console script: ``main`` on sys.argv, re-executed once with huge pages for
-    malloc where that applies (``_hugepages_env``)."""
-    env = _hugepages_env()
+    malloc where that applies (``hugepages_env``)."""
+    env = hugepages_env()
     if env is not None:
         try:
             os.execve(sys.executable, [sys.executable, "-m", "jaxflex.experiments.cli", *sys.argv[1:]], env)

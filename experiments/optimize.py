@@ -7,7 +7,6 @@ on the nominal, perturbed and damped models; peak torque), writes the SPEC 7 JSO
 """
 from __future__ import annotations
 
-import dataclasses
 import time
 from pathlib import Path
 
@@ -15,16 +14,18 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxflex.model_sets import build_model
+from jaxflex.optimize.config import StudyConfig
+from jaxflex.optimize.cycle_time import TORQUE_TOL
+from jaxflex.optimize.study import optimize_design
+from jaxflex.optimize.verification import verify as verify_trajectories
 from jaxflex.path import path_frame
+from jaxflex.problem import Problem, Timing
 from jaxflex.profiles import profile_eval, profile_values
+from jaxflex.progress import stage
 from jaxflex.robot import cycle_preset, igm, robot_preset
 from jaxflex.trajectory import task_from_arc
-from jaxflex.model_sets import ModelId
-from jaxflex.optimize.cycle_time import TORQUE_TOL
-from jaxflex.optimize.study import StudyConfig, optimize_design
-from jaxflex.problem import Problem, Timing
-from jaxflex.progress import stage
-from jaxflex.optimize.study import verify as verify_trajectories
+from jaxflex.uncertainty import ModelId
 
 from .io import atomic_path, fmt, provenance, save_figure, table, write_json
 
@@ -249,8 +250,8 @@ def box_figure(study, robot, out_path: Path) -> None:
 
     cycle = study.paths["paper"].cycle
     ids = study.sets["box"]
-    f_nom = {m: place_first_mode_hz(ModelId(m).robot(robot), cycle) for m in study.payloads}
-    err = np.asarray([100 * (place_first_mode_hz(i.robot(robot, cycle), cycle) / f_nom[i.payload] - 1)
+    f_nom = {m: place_first_mode_hz(build_model(ModelId(m), robot), cycle) for m in study.payloads}
+    err = np.asarray([100 * (place_first_mode_hz(build_model(i, robot, cycle), cycle) / f_nom[i.payload] - 1)
                       for i in ids])
     fig, axes = plt.subplots(1, len(study.payloads), figsize=(6.5 * len(study.payloads), 4.2), squeeze=False)
     for ax, m in zip(axes[0], study.payloads):
@@ -286,17 +287,18 @@ def error_figure(study, out_path: Path, payload_index: int = 0):
     save_figure(fig, out_path)
 
 
-def compute(preset="default", payloads=(6.0,), tf=0.43, out=None, verify=False, grid=None, **study) -> dict:
-    """Run the study (``optimize_design``) and return its JSON record; with ``out`` also write the
-    checkpoint (resumable), ``trajectory.csv``, the figures and ``optimize.json`` there. ``study``:
-    ``StudyConfig`` fields (steps, learning_rate, n_coef, train, free_path, blend, box, ...)."""
+def compute(preset="default", payloads=(6.0,), tf=0.43, out=None, verify=False, grid=None,
+            config: StudyConfig = StudyConfig()) -> dict:
+    """Run the study (``optimize_design`` with ``config``) and return its JSON record; with ``out``
+    also write the checkpoint (resumable), ``trajectory.csv``, the figures and ``optimize.json``
+    there."""
     started = time.time()
     robot, cycle = robot_preset(preset), cycle_preset(preset)
     ckpt = None
     if out:
         Path(out).mkdir(parents=True, exist_ok=True)
         ckpt = Path(out) / "checkpoint.npz"
-    config = StudyConfig(checkpoint=ckpt, **study)
+    config = config.with_optimizer(checkpoint=ckpt)
     study = optimize_design(Problem(robot, cycle, tuple(payloads), Timing(tf, 0.1, grid)), config)
     figures = 2 + ("box" in study.sets)
     bar = stage("study record and outputs", total=1 + (1 + figures if out else 0), unit="part")
@@ -310,7 +312,7 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, out=None, verify=False, 
            "step_times_s": list(study.result.times), "milestones": milestones(study),
            "grid": study.grid._asdict(),
            "provenance": provenance({"preset": preset, "payloads": list(payloads), "tf": tf,
-                                     **config_record(config)}, started)}
+                                     **config.record()}, started)}
     bar.update(note="record")
     if out:
         out = Path(out)
@@ -359,7 +361,7 @@ def trajectories_of(rec: dict, cycle) -> dict:
 
 
 def verification(rec: dict, preset: str = "default") -> dict:
-    """The study's independent check (``jaxflex.optimize.study.verify``) of a study record: the best
+    """The study's independent check (``jaxflex.optimize.verification.verify``) of a study record: the best
     paper combination and the optimized trajectory re-simulated at a quarter step and with the full
     nonlinear model, per payload: "<payload> kg" -> trajectory -> method -> dwell residual [mm]."""
     robot, cycle = robot_preset(preset), cycle_preset(preset)
@@ -374,16 +376,11 @@ def verifications(records: list, preset: str = "default") -> list:
     return [verification(rec, preset) for rec in records]
 
 
-def config_record(config: StudyConfig) -> dict:
-    """The study configuration as JSON (the box as its fields; no checkpoint, memo or initial design)."""
-    return {f.name: (dataclasses.asdict(getattr(config, f.name)) if f.name == "box" else getattr(config, f.name))
-            for f in dataclasses.fields(config) if f.name not in ("init", "checkpoint", "memo")}
-
-
-def run(preset="default", payloads=(6.0,), tf=0.43, out=None, json_path=None, verify=False, **study) -> dict:
-    """``jaxflex optimize``: ``compute`` with the CLI's arguments (payloads [kg], tf [s], ``StudyConfig``
-    fields), print the text and write the JSON."""
-    rec = compute(preset, payloads, tf, out, verify, **study)
+def run(preset="default", payloads=(6.0,), tf=0.43, out=None, json_path=None, verify=False,
+        config: StudyConfig = StudyConfig()) -> dict:
+    """``jaxflex optimize``: ``compute`` with the CLI's arguments (payloads [kg], tf [s], the study's
+    configuration), print the text and write the JSON."""
+    rec = compute(preset, payloads, tf, out, verify, config=config)
     print(text(rec))
     if json_path:
         write_json(json_path, rec)
@@ -450,19 +447,18 @@ def cycle_time_figure(rec: dict, out_path: Path):
 
 
 def run_cycle_time(preset="default", payload=6.0, tf_ref=0.43, tfs=(0.43, 0.40, 0.37, 0.34, 0.31), out=None,
-                   json_path=None, **study) -> dict:
+                   json_path=None, config: StudyConfig = StudyConfig()) -> dict:
     """``jaxflex optimize --cycle-time``: a design optimized at each tf in ``tfs`` [s] for ``payload`` [kg]
     against the best paper combination at ``tf_ref``; prints, writes JSON/figure, returns the record.
-    ``study``: ``StudyConfig`` fields."""
+    ``config``: the study's configuration."""
     from jaxflex.optimize.cycle_time import cycle_time_study
 
     started = time.time()
     robot, cycle = robot_preset(preset), cycle_preset(preset)
-    config = StudyConfig(**study)
     st = cycle_time_study(Problem(robot, cycle, (payload,), Timing(tf_ref)), tfs, config)
     rec = cycle_time_record(st)
     rec["provenance"] = provenance({"preset": preset, "payload": payload, "tf_ref": tf_ref, "tfs": list(tfs),
-                                    **config_record(config)}, started)
+                                    **config.record()}, started)
     print(cycle_time_text(rec))
     if out:
         Path(out).mkdir(parents=True, exist_ok=True)

@@ -5,6 +5,7 @@ is assembled at the end and written atomically.
 """
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 import time
@@ -160,13 +161,15 @@ def _optimization(out: Path, quick: bool, key: dict, vib: dict | None = None) ->
     studies load them from ``DIR/optimizations/workspaces``, removed at the end).
     ``vib``: the vibration study's results (``vibration.compute``), whose paper-model residuals the
     richer-model comparison reuses instead of simulating the 12 combinations again."""
-    from jaxflex.optimize.study import WORKSPACE_MEMO, StudyConfig
+    from jaxflex.optimize.config import StudyConfig
+    from jaxflex.optimize.workspaces import WORKSPACE_MEMO
     from jaxflex.robot import robot_preset
     from jaxflex.sweep import default_grid
 
     from . import optimize as opt
 
-    steps = 2 if quick else StudyConfig.steps
+    study = StudyConfig()
+    steps = 2 if quick else study.train.optimizer.steps
     # Full runs give each study a process of its own: for peak memory, no longer for the mapping limit
     # (jaxflex.runtime.compiled). The compiled programs hold the memory: one study's about 1.3 GB (20.7
     # thousand mappings; 0.77 GB resident after ``release_compiled``, 2.1 GB before). Cold runs in one
@@ -187,19 +190,20 @@ def _optimization(out: Path, quick: bool, key: dict, vib: dict | None = None) ->
         name = "_".join(f"{m:g}" for m in payloads)
         d = out / f"optimize_{name}kg"
         rec = resumable(d / "study.json", key,
-                        lambda: isolated(opt.compute, payloads=payloads, tf=tf, steps=steps, out=str(d),
-                                         grid=grid, train="nominal" if quick else train, n_coef=n_coef,
-                                         verify=False, box_samples=4 if quick else 200,
-                                         richer_modes=1 if quick else 3, memo=str(memo)),
+                        lambda: isolated(opt.compute, payloads=payloads, tf=tf, out=str(d), grid=grid, verify=False,
+                                         config=dataclasses.replace(
+                                             study.with_optimizer(steps=steps, memo=str(memo)),
+                                             training_set="nominal" if quick else train, n_coef=n_coef,
+                                             box_samples=4 if quick else 200, richer_modes=1 if quick else 3)),
                         f"optimization {name} kg")
         res["cases"].append({"dir": d.relative_to(out).as_posix(), "record": rec})
         if not quick:
             release_compiled()
     tfs = (0.43, 0.37) if quick else (0.43, 0.40, 0.37, 0.34, 0.31)
     ct = resumable(out / "cycle_time" / "study.json", key,
-                   lambda: isolated(opt.run_cycle_time, payload=6.0, tf_ref=0.43, tfs=tfs, steps=steps,
-                                    train="nominal" if quick else "box", out=str(out / "cycle_time"),
-                                    memo=str(memo)),
+                   lambda: isolated(opt.run_cycle_time, payload=6.0, tf_ref=0.43, tfs=tfs, out=str(out / "cycle_time"),
+                                    config=dataclasses.replace(study.with_optimizer(steps=steps, memo=str(memo)),
+                                                               training_set="nominal" if quick else "box")),
                    "cycle-time study")
     res["cycle_time"] = {"dir": "cycle_time", "text": opt.cycle_time_text(ct), "record": ct}
     shutil.rmtree(memo / WORKSPACE_MEMO, ignore_errors=True)     # the studies' shared workspaces (~8 MB a model)

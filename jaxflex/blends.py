@@ -36,12 +36,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxflex.names import ALL_BLENDS, BLENDS, DESIGN_BLENDS, SMOOTH_BLENDS  # noqa: F401  (this module's families)
 from jaxflex.quadrature import integrate
 
-BLENDS = ("lame", "clothoid", "polar")                  # the paper's families
-SMOOTH_BLENDS = ("smoothstep", "polar_g3", "polar_g4")  # more continuity at the joins (not in the paper)
-ALL_BLENDS = BLENDS + SMOOTH_BLENDS
-DESIGN_BLENDS = ("lame", "polar") + SMOOTH_BLENDS      # families whose (d, e) may be chosen freely
 POLAR_CONTINUITY = {"polar": 2, "polar_g3": 3, "polar_g4": 4}
 
 _PANELS = 32          # composite quadrature panels over the blend parameter

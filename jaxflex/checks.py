@@ -7,15 +7,17 @@ values (inside ``jax.jit``/``vmap``/``grad``) are not checked: they are returned
 from __future__ import annotations
 
 import math
+import sys
 from typing import Iterable, Sequence
 
-import jax
 import numpy as np
 
 
 def is_traced(value) -> bool:
-    """True if ``value`` (or any leaf of it) is a JAX tracer: eager checks do not apply."""
-    return any(isinstance(v, jax.core.Tracer) for v in jax.tree_util.tree_leaves(value))
+    """True if ``value`` (or any leaf of it) is a JAX tracer: eager checks do not apply. (Without
+    JAX imported nothing is traced: the configurations that use these checks import no JAX.)"""
+    jax = sys.modules.get("jax")
+    return jax is not None and any(isinstance(v, jax.core.Tracer) for v in jax.tree_util.tree_leaves(value))
 
 
 def _scalar(name: str, value, unit: str) -> float:

@@ -16,6 +16,7 @@ from jaxflex import trees
 from jaxflex.frequencies import modes_at_point
 from jaxflex.path import Cycle
 from jaxflex.robot import Robot
+from jaxflex.uncertainty import ModelId
 
 
 def place_first_mode_hz(robot: Robot, cycle: Cycle) -> float:
@@ -23,48 +24,21 @@ def place_first_mode_hz(robot: Robot, cycle: Cycle) -> float:
     return float(modes_at_point(robot, np.asarray(cycle.place))[0])
 
 
-class ModelId(NamedTuple):
-    """Which model of a set: the payload case [kg] and the changes applied to the nominal robot:
-    payload and Young's modulus factors, the damping ratio at the first mode (0: the robot's own),
-    changes of the proximal and distal link lengths [m] and the rotor inertia factor."""
-
-    payload: float
-    payload_scale: float = 1.0
-    stiffness_scale: float = 1.0
-    damping_ratio: float = 0.0
-    l1_delta: float = 0.0
-    l2_delta: float = 0.0
-    rotor_scale: float = 1.0
-
-    @property
-    def nominal(self) -> bool:
-        """The nominal robot with this payload (no perturbation, no added damping)."""
-        return self == ModelId(self.payload)
-
-    @property
-    def label(self) -> str:
-        """Readable name, e.g. '6 kg x1.1, E x0.95' (JSON, tables, figures)."""
-        zeta = f", zeta {self.damping_ratio:g}" if self.damping_ratio else ""
-        lengths = (f", l1 {self.l1_delta * 1e3:+.3g} mm, l2 {self.l2_delta * 1e3:+.3g} mm"
-                   if self.l1_delta or self.l2_delta else "")
-        rotor = f", rotor x{self.rotor_scale:.4g}" if self.rotor_scale != 1.0 else ""
-        return f"{self.payload:g} kg x{self.payload_scale:.4g}, E x{self.stiffness_scale:.4g}{zeta}{lengths}{rotor}"
-
-    def robot(self, nominal: Robot, cycle: Cycle | None = None) -> Robot:
-        """This model built from the ``nominal`` robot (its payload replaced by this case's);
-        ``cycle`` is needed for a damping ratio > 0 (stiffness-proportional Rayleigh damping with
-        that ratio at the first mode of the place pose)."""
-        host = lambda v: np.asarray(v, dtype=float)           # numpy: building a model compiles nothing
-        r = nominal.replace(payload=self.payload * self.payload_scale,
-                            young=host(nominal.young) * self.stiffness_scale,
-                            l1=host(nominal.l1) + self.l1_delta, l2=host(nominal.l2) + self.l2_delta,
-                            rotor_inertia=host(nominal.rotor_inertia) * self.rotor_scale)
-        if self.damping_ratio > 0:
-            if cycle is None:
-                raise ValueError("a model with damping needs the cycle (its first mode at the place pose)")
-            w1 = 2 * np.pi * place_first_mode_hz(r, cycle)
-            r = r.replace(damping=jnp.asarray([0.0, 2 * self.damping_ratio / w1]))
-        return r
+def build_model(model: ModelId, nominal: Robot, cycle: Cycle | None = None) -> Robot:
+    """The model ``model`` (its changes) built from the ``nominal`` robot, its payload replaced by
+    the model's case; ``cycle`` is needed for a damping ratio > 0 (stiffness-proportional Rayleigh
+    damping with that ratio at the first mode of the place pose)."""
+    host = lambda v: np.asarray(v, dtype=float)           # numpy: building a model compiles nothing
+    r = nominal.replace(payload=model.payload * model.payload_scale,
+                        young=host(nominal.young) * model.stiffness_scale,
+                        l1=host(nominal.l1) + model.l1_delta, l2=host(nominal.l2) + model.l2_delta,
+                        rotor_inertia=host(nominal.rotor_inertia) * model.rotor_scale)
+    if model.damping_ratio > 0:
+        if cycle is None:
+            raise ValueError("a model with damping needs the cycle (its first mode at the place pose)")
+        w1 = 2 * np.pi * place_first_mode_hz(r, cycle)
+        r = r.replace(damping=jnp.asarray([0.0, 2 * model.damping_ratio / w1]))
+    return r
 
 
 class ModelSet(NamedTuple):
@@ -103,4 +77,4 @@ def models_of(robot: Robot, ids: Sequence[ModelId], cycle: Cycle | None = None) 
     ids = tuple(ids)
     if not ids:
         raise ValueError("a model set needs at least one model")
-    return ModelSet(trees.stack([i.robot(robot, cycle) for i in ids], dtype=float), ids)
+    return ModelSet(trees.stack([build_model(i, robot, cycle) for i in ids], dtype=float), ids)

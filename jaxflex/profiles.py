@@ -29,9 +29,9 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxflex.names import PROFILES  # noqa: F401  (the paper's laws)
 from jaxflex.quadrature import gauss_legendre
 
-PROFILES = ("poly7", "bang_bang", "trap_1_4", "trap_1_8")
 _TRAP_FRACTION = {"bang_bang": 0.5, "trap_1_4": 0.25, "trap_1_8": 0.125}
 
 

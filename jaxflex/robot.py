@@ -13,9 +13,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxflex.names import PRESETS
 from jaxflex.path import Cycle, make_cycle
-
-PRESETS = ("default", "table6")
 
 
 @jax.tree_util.register_dataclass

@@ -1,4 +1,5 @@
-"""The uncertainty box of the robot model (SPEC 6): how far the real robot may be from the nominal one.
+"""The uncertainty box of the robot model: how far the real robot may be from the nominal one
+(docs/conventions.md#uncertainty-box), and the identities of the models drawn from it (``ModelId``).
 
 A design is judged by its absolute dwell residual over the box: at its training samples, at its
 corners and on random models drawn uniformly inside it (``Box.random``, 200 by default in the
@@ -7,12 +8,12 @@ reports). The box covers, around the nominal robot of each payload case:
 - Young's modulus E x (1 +- ``young``) (every link);
 - the payload mass x (1 +- ``payload``);
 - a structural damping ratio at the first mode in [``damping[0]``, ``damping[1]``]
-  (stiffness-proportional Rayleigh damping, ``ModelId.robot``);
+  (stiffness-proportional Rayleigh damping, ``model_sets.build_model``);
 - each link length (proximal l1, distal l2) +- ``length`` [m];
 - the rotor inertia x (1 +- ``rotor``).
 
 Under the paper's perfect controller the motor angles are prescribed, so the rotor inertia changes
-the torques but not the vibration; the link lengths move the first mode by ~0.1-0.3 % per 0.5 mm.
+the torques but not the vibration; the link lengths move the first mode by a fraction of a percent.
 The frequencies are set mostly by E and the payload, so the training samples (``Box.grid``) span
 those two axes densely, with the other factors at their nominal values (damping 0: the least
 damped corner, which leaves the largest residual); the random models check every factor.
@@ -20,12 +21,39 @@ damped corner, which leaves the largest residual); the random models check every
 from __future__ import annotations
 
 import dataclasses
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 import numpy as np
 
 from jaxflex import checks
-from jaxflex.model_sets import ModelId
+
+
+class ModelId(NamedTuple):
+    """Which model of a set: the payload case [kg] and the changes applied to the nominal robot:
+    payload and Young's modulus factors, the damping ratio at the first mode (0: the robot's own),
+    changes of the proximal and distal link lengths [m] and the rotor inertia factor."""
+
+    payload: float
+    payload_scale: float = 1.0
+    stiffness_scale: float = 1.0
+    damping_ratio: float = 0.0
+    l1_delta: float = 0.0
+    l2_delta: float = 0.0
+    rotor_scale: float = 1.0
+
+    @property
+    def nominal(self) -> bool:
+        """The nominal robot with this payload (no perturbation, no added damping)."""
+        return self == ModelId(self.payload)
+
+    @property
+    def label(self) -> str:
+        """Readable name, e.g. '6 kg x1.1, E x0.95' (JSON, tables, figures)."""
+        zeta = f", zeta {self.damping_ratio:g}" if self.damping_ratio else ""
+        lengths = (f", l1 {self.l1_delta * 1e3:+.3g} mm, l2 {self.l2_delta * 1e3:+.3g} mm"
+                   if self.l1_delta or self.l2_delta else "")
+        rotor = f", rotor x{self.rotor_scale:.4g}" if self.rotor_scale != 1.0 else ""
+        return f"{self.payload:g} kg x{self.payload_scale:.4g}, E x{self.stiffness_scale:.4g}{zeta}{lengths}{rotor}"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -40,7 +68,7 @@ class Box:
     rotor: float = 0.10
 
     def checked(self) -> "Box":
-        """The box with float fields; ValueError naming a bad one (SPEC 8: before anything compiles)."""
+        """The box with float fields; ValueError naming a bad one (before anything compiles)."""
         young = checks.nonnegative("box young", self.young)
         payload = checks.nonnegative("box payload", self.payload)
         length = checks.nonnegative("box length", self.length, "m")

@@ -1,4 +1,4 @@
-"""Cycle-time study (issue 5): how much shorter can the motion be at equal residual vibration?
+"""Cycle-time study: how much shorter can the motion be at equal residual vibration?
 
 For a list of motion times tf the 12 paper combinations are simulated (one sweep, every tf a case)
 and a design (blend parameters and motion law, ``study.train_design``) is optimized at each tf,
@@ -9,14 +9,14 @@ that bound within 1 %. The Pareto curve is the optimized dwell residual against 
 paper combination at each tf; the study reports the shortest tf whose optimized residual (nominal
 model) is no worse than the best paper combination's at the reference time, and the shortest tf
 whose worst residual over the nine perturbed models (E x 0.95/1/1.05, payload x 0.9/1/1.1) is no
-worse than that combination's worst at the reference time (the robust criterion, SPEC 6).
+worse than that combination's worst at the reference time (the robust criterion,
+docs/conventions.md#uncertainty-box).
 
 Every tf shares one grid (the longest tf's: a shorter tf gets a finer step), so the whole study
 compiles its gradient once.
 """
 from __future__ import annotations
 
-import dataclasses
 import time
 from typing import NamedTuple, Sequence
 
@@ -25,20 +25,22 @@ import numpy as np
 
 from jaxflex import checks
 from jaxflex.designs import design_path
+from jaxflex.engine import LawEvaluator
+from jaxflex.model_sets import model_set
 from jaxflex.path import make_path
 from jaxflex.problem import Problem, Timing
 from jaxflex.profiles import make_profile, shaped
 from jaxflex.sweep import Case, SweepConfig, default_grid, run_sweep
-
-from jaxflex.engine import LawEvaluator
-from jaxflex.model_sets import model_set
 from jaxflex.workspace import workspace_shapes
+
+from .config import StudyConfig
 from .gradient import resolved
 from .objective import decode, encode
 from .staged import Staged
-from .study import (PERTURB_E, PERTURB_PAYLOAD, StudyConfig, _abstract_scales, _workspaces, checked_study,
-                    design_objective, nominal_indices, reference_scales, start_design,
-                    torque_bounds, Training, train_design, training_models, training_weights)
+from .study import checked_study
+from .training import (PERTURB_E, PERTURB_PAYLOAD, Training, abstract_scales, design_objective, nominal_indices,
+                       reference_scales, start_design, torque_bounds, train_design, training_models, training_weights)
+from .workspaces import training_workspaces
 
 TORQUE_TOL = 1.01   # a design counts when its peak torque is within 1 % of the bound (soft penalty)
 
@@ -82,20 +84,21 @@ def cycle_time_study(problem: Problem, tfs: Sequence[float] = (0.43, 0.40, 0.37,
     problem, config = checked_study("cycle_time_study", problem, config)
     robot, cycle = problem.robot, problem.cycle
     (payload,), (tf_ref, dwell, _) = problem.payloads, problem.timing
-    n_coef, steps, train, progress = config.n_coef, config.steps, config.train, config.progress
+    n_coef, train = config.n_coef, config.training_set
+    steps, progress = config.train.optimizer.steps, config.train.optimizer.progress
     tfs = np.asarray(checks.positives("tfs", tfs, "s"))
     if tf_ref not in tfs:
         tfs = np.append(tfs, tf_ref)
     tfs = np.sort(tfs)[::-1]
     grid = default_grid(robot, [float(tfs.max())], dwell)     # step <= 0.1 ms at every tf
     models = training_models(robot, [payload], train, box=config.box, points=config.box_points, cycle=cycle)
-    params = encode(cycle, start_design(cycle, n_coef, config.blend))
+    params = encode(cycle, start_design(cycle, n_coef, config.train.blend))
     if steps > 0:
         # the design gradient (one program for every tf) compiles in the background during the sweep
         shapes = design_objective(Training(models, cycle, Timing(float(tfs[0]), dwell, grid),
-                                           _abstract_scales(len(models.ids), training_weights(train)),
+                                           abstract_scales(len(models.ids), training_weights(train)),
                                            workspace_shapes(models.robots, cycle, models=len(models.ids))),
-                                  config.train_config("design"))
+                                  config.train)
         resolved(Staged(), steps).compile_ahead(shapes, params)
     res = run_sweep(robot, cycle, [Case(payload, float(t)) for t in tfs],
                     SweepConfig(dwell=dwell, grid=grid, timed=False))
@@ -118,19 +121,19 @@ def cycle_time_study(problem: Problem, tfs: Sequence[float] = (0.43, 0.40, 0.37,
     i_nominal = int(nominal_indices(perturbed, [payload])[0])      # the nominal model is one of them
     paper_perturbed = LawEvaluator(perturbed, make_path(cycle, blend, 0.025), tf_ref, dwell, grid)
     target_perturbed = float(np.max(paper_perturbed(make_profile(law))["dwell_residual_mm"]))
-    workspaces = _workspaces(models, cycle, progress, config.memo)      # once for every tf
+    workspaces = training_workspaces(models, cycle, progress, config.train.optimizer.memo)      # once for every tf
     opt_res, opt_worst, opt_tau, designs = [], [], [], []
     for tf in tfs:
         scales = reference_scales(ref_eval, make_profile(law), bounds, tf=float(tf), weights=training_weights(train),
                                   absolute=config.absolute)
-        # one optimization per tf: no checkpoint (StudyConfig.checkpoint is one file)
-        train_config = dataclasses.replace(config.train_config(f"design tf={tf:g}"), checkpoint=None)
+        # one optimization per tf: no checkpoint (the configuration's checkpoint is one file)
+        train_config = config.train.with_optimizer(label=f"design tf={tf:g}", checkpoint=None)
         result = train_design(Training(models, cycle, Timing(float(tf), dwell, grid), scales, workspaces), params,
                               train_config)
         params = result.params
         x = jax.tree_util.tree_map(np.asarray, decode(cycle, params))
-        path = design_path(cycle, x, config.blend)
-        m = LawEvaluator(perturbed, path, float(tf), dwell, grid)(shaped(x.coef, config.law_order))
+        path = design_path(cycle, x, config.train.blend)
+        m = LawEvaluator(perturbed, path, float(tf), dwell, grid)(shaped(x.coef, config.train.order))
         opt_res.append(float(m["dwell_residual_mm"][i_nominal]))
         opt_tau.append(float(m["max_torque_nm"][i_nominal]))
         opt_worst.append(float(np.max(m["dwell_residual_mm"])))

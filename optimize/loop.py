@@ -26,6 +26,7 @@ import optax
 from jaxflex import checks
 from jaxflex.progress import Progress
 
+from .config import OptimizerConfig
 from .gradient import OneProgram, is_pytree, resolved
 
 
@@ -67,7 +68,7 @@ def _load(path: Path, params, opt_state):
 
 
 @functools.lru_cache(maxsize=1)
-def _code_digest() -> str:
+def code_digest() -> str:
     """A digest of the library's source (``jaxflex`` with ``jaxflex.optimize``) and of the JAX version:
     a finished optimization is reused (``OptimizerConfig.memo``) only by the code that ran it."""
     import jaxflex
@@ -90,12 +91,12 @@ def fingerprint(f, params0, args, config: "OptimizerConfig", gradient=OneProgram
     result: the objective (a frozen dataclass instance such as ``objective.DesignObjective``: its
     class, its static fields and every array of its data), the start, every array of ``args``
     (values, shapes and dtypes), the schedule and stopping rules, the gradient strategy, the
-    monitor's name (its numbers are in the history) and the code (``_code_digest``). Raises
+    monitor's name (its numbers are in the history) and the code (``code_digest``). Raises
     ValueError for another kind of objective (a function's name does not say what it computes)."""
     if not _is_dataclass_instance(f):
         raise ValueError("a memo of optimizations needs an objective that a frozen dataclass instance describes "
                          f"(e.g. jaxflex.optimize.objective.DesignObjective), got {f!r}")
-    h = hashlib.sha1(_code_digest().encode())
+    h = hashlib.sha1(code_digest().encode())
     c = config
     described = repr(jax.tree_util.tree_structure(f)) if is_pytree(f) else repr(f)
     h.update(repr((type(f).__module__, type(f).__qualname__, described, c.steps, float(c.learning_rate), c.decay,
@@ -173,31 +174,6 @@ def _update(params, state, args, learning_rate, *, f, gradient):
     (value, aux), grad = gradient.value_and_grad(f, params, args)
     new_params, state = _adam_step(params, state, grad, learning_rate)
     return new_params, state, value, aux
-
-
-@dataclasses.dataclass(frozen=True)
-class OptimizerConfig:
-    """How ``minimize`` runs.
-
-    steps: updates at most; learning_rate: Adam's rate [-]; decay: warm-up and cosine decay of the
-    rate over ``steps`` (``schedule``); patience, rel_tol: stop when the best value has not improved
-    by ``rel_tol * max(1, |best|)`` for ``patience`` steps (this works for objectives on a log scale,
-    whose values cross zero); target: stop when the best value falls below it; checkpoint: a .npz
-    path to save to and resume from; progress: report on
-    stderr under ``label``; monitor: aux -> 1-D array of numbers recorded in every history row
-    after (step, value)."""
-
-    steps: int = 100
-    learning_rate: float = 0.05
-    decay: bool = False
-    patience: int = 25
-    rel_tol: float = 1e-3
-    target: float | None = None
-    checkpoint: str | os.PathLike | None = None
-    progress: bool = True
-    label: str = "optimize"
-    monitor: Callable | None = None
-    memo: str | os.PathLike | None = None
 
 
 def minimize(f: Callable, params0, args: tuple = (), config: OptimizerConfig = OptimizerConfig(),

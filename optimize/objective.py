@@ -47,6 +47,8 @@ from jaxflex.rollout import RolloutModel, RolloutState
 from jaxflex.simulate import Grid, motion_samples
 from jaxflex.workspace import Workspace
 
+from .config import BLEND_FAMILY
+
 N_MIN, N_MAX = 2.0, 8.0
 TORQUE_WEIGHT = 1e5     # penalty weight on (peak torque / bound - 1)^2: 1 % excess costs 10 in J (a
                         # factor e^10 in residual), so the bound holds to ~1e-4 at the optimum
@@ -138,9 +140,6 @@ def over_models(fn, *batched):
         return jax.vmap(fn)(*batched)
     remat = jax.checkpoint(fn)
     return jax.lax.map(lambda xs: remat(*xs), batched)
-
-
-BLEND_FAMILY = "smoothstep"         # the optimized design's default blend family (d, e per corner; G4 joins)
 
 
 _static = dict(metadata=dict(static=True))

@@ -144,10 +144,16 @@ class _Chain:
         """The gradient of r_k (``RESIDUAL_ROW``) or tau_k (``TORQUE_ROW``): the params' cotangent."""
         p, call = self.programs, self.call
         (later,) = call(p.backward, (self.vjps[-1], (row,)))
-        pending = [later]                    # cotangents of the later stages' inputs, latest first
+        pending = [later]                    # cotangents of the later stages' inputs, the last stage's first
         for i in range(len(self.groups) - 2, -1, -1):
             g = self.groups[i]
-            cts = tuple(rl.restrict(ct, g.writes) for ct in pending if any(getattr(ct, f) is not None for f in g.writes))
+            cts = []
+            for j, ct in enumerate(pending):
+                if any(getattr(ct, f) is not None for f in g.writes):
+                    cts.append(rl.restrict(ct, g.writes))
+                    # consumed: a stage that wrote these fields before this one gets none of it
+                    pending[j] = ct._replace(**{f: None for f in g.writes})
+            cts = tuple(cts)
             for name in g.writes:
                 if getattr(self.outputs[i], name) is not None and all(getattr(ct, name) is None for ct in cts):
                     raise ValueError(f"stage {g.name!r} writes {name!r} but no later stage reads it")

@@ -29,10 +29,10 @@ os.environ.setdefault("JAXFLEX_THREADS", "1")
 
 # The xdist workers start after this file is read, so they inherit the environment the ``jaxflex``
 # console script runs in: glibc's malloc on transparent huge pages (about half the kernel time of
-# XLA's buffer allocations; ``jaxflex.experiments.cli._hugepages_env``).
-from jaxflex.experiments.cli import _hugepages_env  # noqa: E402  (imports no jax)
+# XLA's buffer allocations; ``jaxflex.experiments.cli.hugepages_env``).
+from jaxflex.experiments.cli import hugepages_env  # noqa: E402  (imports no jax)
 
-os.environ.update(_hugepages_env() or {})
+os.environ.update(hugepages_env() or {})
 
 import jax  # noqa: E402
 import pytest  # noqa: E402

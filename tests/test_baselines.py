@@ -61,7 +61,7 @@ def test_spanning_training_set_brackets_the_first_frequency_of_the_perturbed_mod
     """The spanning set (nominal and the four corners of the perturbation box) contains the models
     with the lowest and the highest first locked frequency of the nine perturbed models (E x
     0.95/1/1.05, payload x 0.9/1/1.1): training on it covers their range."""
-    from jaxflex.optimize.study import training_models
+    from jaxflex.optimize.training import training_models
 
     robot, cycle = robot_preset("default", n_bending=1, n_axial=1), cycle_preset()
     span = training_models(robot, [6.0], "spanning")
@@ -82,7 +82,7 @@ def test_spanning_training_set_brackets_the_first_frequency_of_the_perturbed_mod
 def test_nominal_indices_find_each_payloads_nominal_model_in_every_training_set():
     """The study reads the paper combinations' metrics of the nominal models out of the sweep on
     the training models: the index must be the model with the robot's stiffness and that payload."""
-    from jaxflex.optimize.study import nominal_indices, training_models
+    from jaxflex.optimize.training import nominal_indices, training_models
 
     robot = robot_preset("default", n_bending=1, n_axial=1)
     for kind, expected in (("nominal", [0, 1]), ("spanning", [0, 5]), ("perturbed", [4, 13])):

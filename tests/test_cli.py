@@ -62,7 +62,7 @@ def test_console_script_runs_and_every_command_has_help(capsys):
 
 
 def test_console_script_environment_adds_huge_pages_once(monkeypatch):
-    """The console script re-runs itself with glibc's malloc on huge pages (``_hugepages_env``):
+    """The console script re-runs itself with glibc's malloc on huge pages (``hugepages_env``):
     the tunable is appended to existing ones, never twice, and JAXFLEX_HUGEPAGES=0 turns it off."""
     from jaxflex.experiments import cli
 
@@ -71,32 +71,34 @@ def test_console_script_environment_adds_huge_pages_once(monkeypatch):
     monkeypatch.setattr("builtins.open", lambda *a, **k: __import__("io").StringIO("always [madvise] never"))
     monkeypatch.delenv("JAXFLEX_HUGEPAGES", raising=False)
     monkeypatch.setenv("GLIBC_TUNABLES", "glibc.malloc.arena_max=2")
-    env = cli._hugepages_env()
+    env = cli.hugepages_env()
     assert env["GLIBC_TUNABLES"] == "glibc.malloc.arena_max=2:glibc.malloc.hugetlb=1"
     monkeypatch.setenv("GLIBC_TUNABLES", env["GLIBC_TUNABLES"])
-    assert cli._hugepages_env() is None                        # already set: no second re-execution
+    assert cli.hugepages_env() is None                        # already set: no second re-execution
     monkeypatch.delenv("GLIBC_TUNABLES")
-    assert cli._hugepages_env()["GLIBC_TUNABLES"] == "glibc.malloc.hugetlb=1"
+    assert cli.hugepages_env()["GLIBC_TUNABLES"] == "glibc.malloc.hugetlb=1"
     monkeypatch.setenv("JAXFLEX_HUGEPAGES", "0")
-    assert cli._hugepages_env() is None
+    assert cli.hugepages_env() is None
     monkeypatch.delenv("JAXFLEX_HUGEPAGES")
     monkeypatch.setattr("builtins.open", lambda *a, **k: __import__("io").StringIO("always madvise [never]"))
-    assert cli._hugepages_env() is None                        # huge pages off in the kernel
+    assert cli.hugepages_env() is None                        # huge pages off in the kernel
 
 
 def test_optimize_command_defaults_are_the_study_defaults():
-    """``jaxflex optimize`` without options runs ``StudyConfig()`` (the CLI keeps its own copy of the
-    defaults so that --help imports no jax)."""
+    """``jaxflex optimize`` without options runs ``StudyConfig()``: the CLI reads its defaults from the
+    configuration (a module that imports no jax, so that --help starts at once)."""
     import dataclasses
 
-    from jaxflex.experiments.cli import build_parser
-    from jaxflex.optimize.study import ROBUST_POWER, StudyConfig
+    from jaxflex.experiments.cli import build_parser, study_config
+    from jaxflex.optimize.config import ROBUST_POWER, StudyConfig
 
     a, c = build_parser().parse_args(["optimize"]), StudyConfig()
+    o = c.train.optimizer
     assert (a.steps, a.coef, a.lr, a.train, a.blend, a.box_points, a.box_samples, a.richer_modes) == (
-        c.steps, c.n_coef, c.learning_rate, c.train, c.blend, c.box_points, c.box_samples, c.richer_modes)
+        o.steps, c.n_coef, o.learning_rate, c.training_set, c.train.blend, c.box_points, c.box_samples, c.richer_modes)
     assert (a.box_young, a.box_payload, tuple(a.box_damping), a.box_length, a.box_rotor) == dataclasses.astuple(c.box)
-    assert a.objective == "worst" and c.absolute and c.robust_power == ROBUST_POWER and a.free_path == c.free_path
+    assert a.objective == "worst" and c.absolute and c.train.power == ROBUST_POWER and a.free_path == c.free_path
+    assert study_config(a) == c                                 # the configuration the command runs
 
 
 @pytest.mark.xdist_group("commands")

@@ -69,11 +69,12 @@ def test_law_gradient_matches_central_differences_full_6kg_rollout():
     <= 6e-7). The program is the one ``jaxflex optimize --law-only --train nominal`` compiles."""
     from jaxflex.optimize.loop import value_and_grad
     from jaxflex.engine import LawEvaluator
-    from jaxflex.optimize.study import StudyConfig, law_objective, training_models
+    from jaxflex.optimize.config import StudyConfig
+    from jaxflex.optimize.training import law_objective, training_models
 
     robot, cycle = robot_preset("default"), cycle_preset()
     models = training_models(robot, [6.0], "nominal")
-    config = StudyConfig().train_config("law")                  # the command's objective
+    config = StudyConfig().train.with_optimizer(label="law")    # the command's objective
     path = make_path(cycle, "lame", 0.025)
     grid = default_grid(robot, [TF], DWELL)
     coef = jnp.asarray([1.0, 1.3, 0.8, 1.1, 0.9, 1.2])
@@ -254,13 +255,14 @@ def test_the_optimizers_own_gradient_matches_central_differences():
     them. The programs are the ones ``jaxflex optimize --train nominal`` compiles, so the command and
     this check share them."""
     from jaxflex.optimize import staged
-    from jaxflex.optimize.study import StudyConfig, Training, design_objective, training_models
+    from jaxflex.optimize.config import StudyConfig
+    from jaxflex.optimize.training import Training, design_objective, training_models
     from jaxflex.problem import Timing
 
     gradient = staged.Staged()
     robot, cycle = robot_preset("default"), cycle_preset()
     models = training_models(robot, [0.1, 6.0], "nominal")
-    config = StudyConfig().train_config("design")              # the command's objective
+    config = StudyConfig().train                               # the command's objective
     grid = default_grid(robot, [TF], DWELL)
     timing = Timing(TF, DWELL, grid)
     p0 = encode(cycle, design(d=0.02, e=0.03, n=3.5, coef=[1.0, 1.2, 0.9, 1.1, 0.8, 1.05], d2=0.022, e2=0.04,
@@ -306,12 +308,13 @@ def test_the_staged_design_gradient_equals_the_one_program_gradient():
     largest component. About a minute (the one-program gradient's compile)."""
     from jaxflex.optimize.gradient import OneProgram
     from jaxflex.optimize.staged import Staged
-    from jaxflex.optimize.study import StudyConfig, Training, design_objective, subset, training_models
+    from jaxflex.optimize.config import StudyConfig
+    from jaxflex.optimize.training import Training, design_objective, subset, training_models
     from jaxflex.problem import Timing
 
     robot, cycle = robot_preset("default"), cycle_preset()
     models = subset(training_models(robot, [6.0], "box"), [0, 4, 8])
-    config = StudyConfig().train_config("design")
+    config = StudyConfig().train
     grid = default_grid(robot, [TF], DWELL)
     p0 = encode(cycle, design(d=0.02, e=0.03, n=3.5, coef=[1.0, 1.2, 0.9, 1.1, 0.8, 1.05], d2=0.022, e2=0.04,
                               n2=3.2))
@@ -369,7 +372,8 @@ def test_paper_sweep_on_training_models_matches_run_sweep_and_chunks_do_not_chan
     from jaxflex import engine
     from jaxflex.engine import LawEvaluator
     from jaxflex.model_sets import model_set
-    from jaxflex.optimize.study import PERTURB_E, PERTURB_PAYLOAD, nominal_indices, paper_sweep, training_models
+    from jaxflex.optimize.evaluation import paper_sweep
+    from jaxflex.optimize.training import PERTURB_E, PERTURB_PAYLOAD, nominal_indices, training_models
     from jaxflex.profiles import make_profile
     from jaxflex.sweep import Case, SweepConfig, run_sweep
 
@@ -413,7 +417,7 @@ def test_power_mean_objective_tends_to_the_worst_model_and_scales_are_absolute()
     from jaxflex.model_sets import model_set
     from jaxflex.metrics import Terms
     from jaxflex.optimize.objective import combine
-    from jaxflex.optimize.study import scales_from_metrics
+    from jaxflex.optimize.training import scales_from_metrics
 
     scales = Scales(jnp.ones(3), jnp.ones(3), jnp.asarray(1e9), jnp.asarray([0.5, 0.25, 0.25]))
     r = jnp.asarray([1.0, 4.0, 2.0])                                   # per-model (E + A) / 2 = r
@@ -438,7 +442,7 @@ def test_a_study_record_rebuilds_the_studys_trajectories_bit_for_bit(tmp_path):
     (``experiments.optimize.trajectories_of``): the optimized path and law and the best paper path
     rebuilt from the record (``design_record``, through a JSON round trip) must be the study's own
     arrays, bit for bit, or the verification would check another trajectory. The workspace memo of
-    the studies (``study.remembered_workspaces``) is checked by the same principle in
+    the studies (``workspaces.remembered_workspaces``) is checked by the same principle in
     ``test_workspace.py``."""
     import json
     from types import SimpleNamespace
@@ -467,13 +471,13 @@ def test_a_study_record_rebuilds_the_studys_trajectories_bit_for_bit(tmp_path):
 
 
 def test_remembered_workspaces_load_the_models_built_before_and_rebuild_the_others(tmp_path, monkeypatch):
-    """The studies' workspace memo (``study.remembered_workspaces``): a model whose tables a study
+    """The studies' workspace memo (``workspaces.remembered_workspaces``): a model whose tables a study
     built before is loaded, the others are built (as one stack) and kept; the result is the stack
     in the models' order, whichever were loaded; a damaged file is built again. The builder is
     replaced by a cheap one whose tables encode the payload, so the test checks which model's
     tables land where (that a stacked build gives each model the tables of a build alone, bit for
     bit, is measured in the issue notes: the 18 models of both payloads against two stacks of 9)."""
-    from jaxflex.optimize import study
+    from jaxflex.optimize import workspaces as study
     from jaxflex.workspace import workspace_shapes
 
     robot, cycle = robot_preset("default"), cycle_preset()

@@ -23,7 +23,8 @@ from jaxflex import model as mdl
 from jaxflex.linearized import path_pose
 from jaxflex.metrics import METRICS, metrics
 from jaxflex.engine import LawEvaluator
-from jaxflex.model_sets import ModelId, ModelSet
+from jaxflex.model_sets import ModelSet
+from jaxflex.uncertainty import ModelId
 from jaxflex.optimize.objective import stack_robots
 from jaxflex.path import make_path
 from jaxflex.profiles import make_profile, profile_eval

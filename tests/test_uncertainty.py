@@ -3,7 +3,8 @@ anything compiles, and a model identity builds the robot it names."""
 import numpy as np
 import pytest
 
-from jaxflex.model_sets import ModelId, model_set, models_of
+from jaxflex.model_sets import build_model, model_set, models_of
+from jaxflex.uncertainty import ModelId
 from jaxflex.robot import cycle_preset, robot_preset
 from jaxflex.uncertainty import Box
 
@@ -59,4 +60,4 @@ def test_model_identity_builds_its_robot():
     assert ModelId(6.0).label == "6 kg x1, E x1"                  # unchanged for the old sets
     assert "l1 +0.3 mm" in mid.label and "rotor x1.1" in mid.label
     with pytest.raises(ValueError, match="cycle"):
-        ModelId(6.0, damping_ratio=0.01).robot(robot)
+        build_model(ModelId(6.0, damping_ratio=0.01), robot)

@@ -103,7 +103,8 @@ def _entry_points():
     from jaxflex.model_sets import model_set
     from jaxflex.optimize.cycle_time import cycle_time_study
     from jaxflex.optimize.objective import Scales, encode
-    from jaxflex.optimize.study import StudyConfig, TrainConfig, Training, optimize_design, train_design, train_law
+    from jaxflex.optimize.study import optimize_design
+    from jaxflex.optimize.training import Training, train_design, train_law
     from jaxflex.problem import Problem, Timing
     from jaxflex.simulate import Grid
     from jaxflex.sweep import Case, SweepConfig, run_sweep
@@ -133,27 +134,49 @@ def _entry_points():
          {"tf": bad_times, "dwell": bad_times, "chunk": [0, -4], "blend": ["spline"]}),
         ("optimize_design", lambda **kw: optimize_design(
             Problem(ROBOT, CYCLE, kw.pop("payloads", (6.0,)), Timing(kw.pop("tf", 0.43), kw.pop("dwell", 0.1))),
-            StudyConfig(**kw)),
+            _study_config(**kw)),
          {"tf": bad_times, "dwell": bad_times, "payloads": [(0.0,), (-6.0,), (float("nan"),), (float("inf"),), ()],
           "steps": [-1, 2.5, float("nan")], "learning_rate": bad_times, "n_coef": [0, -2],
           "train": ["everything"], "blend": ["spline", "clothoid"], "box_points": [0, 2, -3],
           "box_samples": [-1, 2.5], "robust_power": [0.0, -8.0, float("nan")],
           "box": [Box(young=-0.05), Box(payload=1.5), Box(damping=(0.01, 0.0)), Box(length=float("nan"))]}),
         ("train_design", lambda tf=0.43, dwell=0.1, **kw: train_design(
-            Training(models, CYCLE, Timing(tf, dwell, grid), scales), params, TrainConfig(**kw)),
+            Training(models, CYCLE, Timing(tf, dwell, grid), scales), params, _train_config(**kw)),
          {"tf": bad_times, "dwell": bad_times, "steps": [-1, 0.5], "learning_rate": bad_times}),
         ("train_law", lambda tf=0.43, dwell=0.1, **kw: train_law(_Evaluator(tf, dwell), scales, np.ones(4),
-                                                                 TrainConfig(**kw)),
+                                                                 _train_config(**kw)),
          {"tf": bad_times, "dwell": bad_times, "steps": [-1], "learning_rate": bad_times}),
         ("cycle_time_study", lambda **kw: cycle_time_study(
             Problem(ROBOT, CYCLE, (kw.pop("payloads", 6.0),), Timing(kw.pop("tf", 0.43))), kw.pop("tfs", (0.43, 0.4)),
-            StudyConfig(**kw)),
+            _study_config(**kw)),
          {"payloads": [0.0, *bad_payloads], "tf": bad_times, "tfs": [(0.43, 0.0), (float("nan"),), ()],
           "steps": [-1], "learning_rate": bad_times, "train": ["all"], "box_points": [4],
           "box": [Box(rotor=-0.1)]}),
         ("bench", lambda **kw: bench.compute(**kw), {"repeats": [0, -1, 2.5]}),
         ("reproduce", lambda **kw: reproduce.run(**kw), {"out": ["", None]}),
     ]
+
+
+_OPTIMIZER = ("steps", "learning_rate")         # the flat names of the cases: their nested fields
+_TRAIN = {"robust_power": "power", "blend": "blend"}
+
+
+def _train_config(**kw):
+    from jaxflex.optimize.config import TrainConfig
+
+    return TrainConfig().with_optimizer(**{k: kw.pop(k) for k in _OPTIMIZER if k in kw})
+
+
+def _study_config(**kw):
+    import dataclasses
+
+    from jaxflex.optimize.config import StudyConfig
+
+    c = StudyConfig().with_optimizer(**{k: kw.pop(k) for k in _OPTIMIZER if k in kw})
+    c = c.with_train(**{_TRAIN[k]: kw.pop(k) for k in list(kw) if k in _TRAIN})
+    if "train" in kw:
+        kw["training_set"] = kw.pop("train")
+    return dataclasses.replace(c, **kw)
 
 
 def jax_tree_stack(items):
@@ -179,7 +202,7 @@ def test_every_entry_point_rejects_bad_values_naming_them_before_compiling(name,
         call(**{arg: value})
     text = str(err.value)
     expected = {"payloads": "payload", "blends": "blend", "profiles": "profile", "train": "training set",
-                "tf_ref": "tf", "tfs": "tfs", "blend": "blend"}.get(arg, arg)
+                "tf_ref": "tf", "tfs": "tfs", "blend": "blend", "robust_power": "power"}.get(arg, arg)
     assert expected in text, (name, arg, value, text)
     assert compilations[0] == 0, f"{name}({arg}={value!r}) compiled {compilations[0]} programs before rejecting it"
 
@@ -191,7 +214,8 @@ def test_configured_entry_points_refuse_a_wrong_configuration(compilations):
     from jaxflex.design_sweep import sweep_designs
     from jaxflex.model_sets import model_set
     from jaxflex.optimize.objective import Scales, encode
-    from jaxflex.optimize.study import TrainConfig, Training, train_design, train_law
+    from jaxflex.optimize.config import TrainConfig
+    from jaxflex.optimize.training import Training, train_design, train_law
     from jaxflex.designs import design
     from jaxflex.problem import Timing
     from jaxflex.sweep import PAPER_CASES, run_sweep
@@ -205,7 +229,7 @@ def test_configured_entry_points_refuse_a_wrong_configuration(compilations):
     with pytest.raises(TypeError):
         run_sweep(ROBOT, CYCLE, PAPER_CASES, timed=False)          # the options live in SweepConfig
     with pytest.raises(ValueError, match="needs the timing's grid"):
-        train_design(training, params, TrainConfig(steps=1))
+        train_design(training, params, TrainConfig().with_optimizer(steps=1))
     with pytest.raises(TypeError):
         train_law(None, None, np.ones(4), steps=1)                      # the options live in TrainConfig
     with pytest.raises(TypeError, match="config must be a DesignSweepConfig, got Timing"):

@@ -48,6 +48,7 @@ import matplotlib
 if "ipykernel" not in sys.modules:      # run as a script (python file.py, the tests): no display, files only
     matplotlib.use("Agg")
 
+import dataclasses
 import json
 import os
 from pathlib import Path
@@ -59,9 +60,11 @@ import numpy as np
 from jaxflex import plotting
 from jaxflex.blends import BLENDS
 from jaxflex.experiments.io import fmt, save_figure, table
-from jaxflex.optimize.loop import OptimizerConfig, minimize
+from jaxflex.optimize.config import OptimizerConfig
+from jaxflex.optimize.loop import minimize
 from jaxflex.optimize.objective import LawObjective, Scales
-from jaxflex.optimize.study import StudyConfig, optimize_design
+from jaxflex.optimize.config import StudyConfig
+from jaxflex.optimize.study import optimize_design
 from jaxflex.path import make_path
 from jaxflex.problem import Problem, Timing
 from jaxflex.profiles import PROFILES, make_profile, profile_values, shaped
@@ -138,8 +141,8 @@ if QUICK:
 else:
     checkpoint = OUT / f"checkpoint_{PAYLOAD:g}kg_{TF:g}s_{N_COEF}coef.npz"
     study = optimize_design(Problem(robot, cycle, (PAYLOAD,), Timing(TF, DWELL)),
-                            StudyConfig(steps=STEPS, learning_rate=LEARNING_RATE, n_coef=N_COEF,
-                                        checkpoint=checkpoint))
+                            dataclasses.replace(StudyConfig(), n_coef=N_COEF).with_optimizer(
+                                steps=STEPS, learning_rate=LEARNING_RATE, checkpoint=checkpoint))
     paper = study.paper
     paper_blends, paper_profiles = BLENDS, PROFILES                        # the study sweeps them all
     blend, best_law, coef, result = study.blend, study.best_paper, study.coef, study.result

@@ -17,7 +17,17 @@ print(jaxflex.__file__, file=sys.stderr)
 robot, cycle = robot_preset("default"), cycle_preset()
 res = run_sweep(robot, cycle, PAPER_CASES)
 out = {"sweep": {k: np.asarray(v).ravel().tolist() for k, v in res.metrics.items()}}
-if hasattr(S, "StudyConfig"):
+try:
+    from jaxflex.optimize.config import StudyConfig as Nested
+except ImportError:
+    Nested = None
+if Nested is not None:                       # the nested configuration
+    import dataclasses
+    from jaxflex.problem import Problem, Timing
+    c = dataclasses.replace(Nested(), training_set="spanning", ruckig=False, absolute=False, box_samples=0,
+                            richer_modes=0).with_optimizer(steps=3, progress=False).with_train(blend="lame", power=1.0)
+    st = S.optimize_design(Problem(robot, cycle, (6.0,), Timing(0.43)), c)
+elif hasattr(S, "StudyConfig"):
     from jaxflex.problem import Problem, Timing
     import dataclasses
     fields = {f.name for f in dataclasses.fields(S.StudyConfig)}
