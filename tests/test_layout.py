@@ -1,7 +1,15 @@
-"""The layers import one way: the core library (jaxflex/) imports neither the optimizers (optimize/,
-installed as jaxflex.optimize) nor the experiment scripts and command line (experiments/, installed as
-jaxflex.experiments); optimize/ does not import experiments/. Checked on the source (every import
-statement, also those inside functions)."""
+"""The package's layers, checked on the source (every import statement, also those inside functions).
+
+- Imports go one way: the core library (jaxflex/) imports neither the optimizers (optimize/,
+  installed as jaxflex.optimize) nor the experiment scripts and command line (experiments/,
+  installed as jaxflex.experiments); optimize/ does not import experiments/. The package's
+  ``__init__`` is the exception by design: the public facade over every layer, resolved lazily.
+- No module imports in a circle, through any chain of imports, in jaxflex/, optimize/ or
+  experiments/.
+- The physics modules are pure functions: neither they nor anything they import reaches the
+  runtime (jaxflex.runtime: compiler options, compiles, threads, memo caches, heap), and they hold
+  no locks, pools or compiler options of their own.
+"""
 import ast
 import pathlib
 
@@ -10,28 +18,131 @@ import pytest
 ROOT = pathlib.Path(__file__).resolve().parents[1]
 FORBIDDEN = {"jaxflex": ("jaxflex.optimize", "jaxflex.experiments", "optimize", "experiments"),
              "optimize": ("jaxflex.experiments", "experiments")}
+LAYERS = {"jaxflex": "jaxflex", "optimize": "jaxflex.optimize", "experiments": "jaxflex.experiments"}
+PHYSICS = ("model", "beams", "linearized", "rollout", "simulate", "metrics", "rigid", "path", "blends", "profiles",
+           "trajectory", "workspace", "designs")
+RUNTIME = "jaxflex.runtime"
 
 
-def _imports(path: pathlib.Path):
+def _imports(path: pathlib.Path, module: str = ""):
+    """(line, absolute module name) of every import in the file (relative ones resolved against the
+    module's package), and for ``from package import name`` also ``package.name``."""
     tree = ast.parse(path.read_text(), filename=str(path))
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             for alias in node.names:
                 yield node.lineno, alias.name
         elif isinstance(node, ast.ImportFrom):
-            if node.level:                       # relative: resolve within the package
-                continue
-            yield node.lineno, node.module or ""
-            if node.module == "jaxflex":         # from jaxflex import optimize / experiments
-                for alias in node.names:
-                    yield node.lineno, f"jaxflex.{alias.name}"
+            base = node.module or ""
+            if node.level:
+                parts = package.split(".")
+                parts = parts[:len(parts) - node.level + 1]
+                base = ".".join(parts + ([node.module] if node.module else []))
+            yield node.lineno, base
+            for alias in node.names:
+                yield node.lineno, f"{base}.{alias.name}"
+
+
+def _modules() -> dict:
+    """Installed module name -> file, for every module of the three layers."""
+    out = {}
+    for folder, name in LAYERS.items():
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            rel = path.relative_to(ROOT / folder).with_suffix("")
+            parts = [p for p in rel.parts if p != "__init__"]
+            out[".".join([name] + parts)] = path
+    return out
+
+
+def _graph() -> dict:
+    """Module -> the package modules it imports (a ``from package import name`` counts as importing
+    the submodule when ``name`` is one, else the package)."""
+    modules = _modules()
+    graph = {}
+    for name, path in modules.items():
+        deps = set()
+        for _, target in _imports(path, name):
+            if target in modules and target != name:
+                deps.add(target)
+        graph[name] = deps
+    return graph
 
 
 @pytest.mark.parametrize("layer", sorted(FORBIDDEN))
 def test_imports_go_one_way(layer):
     bad = []
     for path in sorted((ROOT / layer).rglob("*.py")):
+        if path == ROOT / "jaxflex" / "__init__.py":
+            continue                    # the public facade (lazy): every layer's names, by design
         for line, module in _imports(path):
             if any(module == f or module.startswith(f + ".") for f in FORBIDDEN[layer]):
                 bad.append(f"{path.relative_to(ROOT)}:{line} imports {module}")
     assert not bad, "\n".join(bad)
+
+
+def _cycles(graph: dict) -> list:
+    """The strongly connected components of more than one module (Tarjan), and self-imports."""
+    index, low, stack, on, out = {}, {}, [], set(), []
+
+    def visit(v):
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on.add(v)
+        for w in sorted(graph.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while True:
+                w = stack.pop()
+                on.discard(w)
+                comp.append(w)
+                if w == v:
+                    break
+            if len(comp) > 1:
+                out.append(sorted(comp))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return out
+
+
+def test_no_module_imports_in_a_circle():
+    cycles = _cycles(_graph())
+    assert not cycles, "import cycles:\n" + "\n".join(" <-> ".join(c) for c in cycles)
+
+
+def test_the_cycle_check_finds_a_cycle():
+    """The check above can fail: a two-module loop and a longer one are reported."""
+    graph = {"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"e"}, "e": {"d"}, "f": {"a"}}
+    assert sorted(_cycles(graph)) == [["a", "b", "c"], ["d", "e"]]
+
+
+def _reach(graph: dict, start: str) -> set:
+    seen, todo = set(), [start]
+    while todo:
+        v = todo.pop()
+        for w in graph.get(v, ()):
+            if w not in seen:
+                seen.add(w)
+                todo.append(w)
+    return seen
+
+
+@pytest.mark.parametrize("name", PHYSICS)
+def test_physics_modules_do_not_reach_the_runtime(name):
+    """Neither the module nor anything it imports (transitively) is the runtime; it imports no
+    threads or pools and sets no compiler options."""
+    graph, module = _graph(), f"jaxflex.{name}"
+    assert module in graph, module
+    reached = sorted(m for m in _reach(graph, module) | {module} if m == RUNTIME or m.startswith(RUNTIME + "."))
+    assert not reached, f"{module} reaches {reached}"
+    path = ROOT / "jaxflex" / f"{name}.py"
+    own = {target for _, target in _imports(path, module)}
+    assert not own & {"threading", "concurrent", "concurrent.futures", "multiprocessing"}, own
+    assert "compiler_options" not in path.read_text()
