@@ -1,5 +1,6 @@
-"""The ``jaxflex`` command line (docs/conventions.md#file-formats), outside the core library: each subcommand is a thin call into
-the experiment scripts of this package (``jaxflex.experiments``), which call the library."""
+"""The ``jaxflex`` command line (docs/conventions.md#file-formats), outside the core library: each
+subcommand is a thin call into the experiment scripts of this package (``jaxflex.experiments``),
+which call the library."""
 from __future__ import annotations
 
 import argparse
@@ -118,7 +119,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="optimize the motion law only, on the best paper combination's path")
     p.add_argument("--verify", action="store_true",
                    help="re-simulate the best paper combination and the optimized trajectory at a quarter "
-                        "step and with the full nonlinear model (exponential integrator, 2e-5 s; a minute or two)")
+                        "step and with the full nonlinear model (exponential integrator, step 2e-5 s; this adds to the "
+                        "run time)")
     p.add_argument("--out", metavar="DIR",
                    help="write optimize.json, trajectory.csv (t,x,y,q1,q2 at 10 kHz), figures and a "
                         "checkpoint to DIR; rerunning with the same DIR resumes")
@@ -255,10 +257,10 @@ def hugepages_env() -> dict | None:
     (``/sys/kernel/mm/transparent_hugepage/enabled`` is "never"), or already set in GLIBC_TUNABLES.
 
     Why: XLA:CPU allocates and frees large buffers at every run of a program, and with 4 KiB pages
-    every new buffer costs page faults: a cold ``jaxflex optimize --payload 6 --tf 0.43`` spends
-    about a quarter of its CPU time in the kernel (61 million page faults). With huge pages: 2
-    million, and the run takes about 0.9x the time; the results are the same (memory placement
-    only). glibc reads the tunable only at start-up, hence the re-execution."""
+    every new buffer costs page faults, so an optimization spends a large share of its CPU time in
+    the kernel. Huge pages take far fewer page faults and shorten the run; the results are the same
+    (memory placement only; figures in docs/performance.md). glibc reads the tunable only at
+    start-up, hence the re-execution."""
     import platform
 
     tunables = os.environ.get("GLIBC_TUNABLES", "")

@@ -1,7 +1,7 @@
 """Step convergence of the fast rollouts and the cross-check against the full nonlinear model.
 
 - ``dt_study``: all 24 paper runs at the default grid and with every step quartered (frozen
-  intervals, fine steps and dwell steps), the relative change of every metric (SPEC 5: < 1 %, values
+  intervals, fine steps and dwell steps), the relative change of every metric (limits: < 1 %, values
   at the single instant tf < 2 %).
 - ``reference_study``: the fast formulation against the full nonlinear model (``jaxflex.reference``,
   its exponential integrator by default), Lamé path, four motion laws, both paper cases.
@@ -63,9 +63,9 @@ def dt_markdown(study: dict) -> str:
 def reference_study(dt: float | None = None, cases=PAPER_CASES, dwell: float = 0.1, method: str = "exprb3") -> dict:
     """Fast formulation vs the full nonlinear model integrated by ``method`` at ``dt`` [s] (its
     default step if None; ``jaxflex.reference``), Lamé, four laws, for every case (payload [kg],
-    tf [s]). The exponential integrator keeps the undamped 18.6 kHz axial modes at 20 us; RK4 damps
-    them numerically by 1 - |R(i omega dt)| ~ (omega dt)^6 / 144 per step: at 1e-6 s about 1 % over
-    the 0.53 s run, at 1e-5 s it wipes them out."""
+    tf [s]). The exponential integrator keeps the undamped 18.6 kHz axial modes undamped at its
+    default step; RK4 damps them numerically by 1 - |R(i omega dt)| ~ (omega dt)^6 / 144 per step,
+    so it needs a far smaller step to keep them (figures in docs/performance.md)."""
     robot, cycle = robot_preset("default"), cycle_preset()
     dt = DEFAULT_DT[method] if dt is None else dt
     out = {"dt": dt, "method": method, "cases": []}

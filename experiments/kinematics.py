@@ -22,7 +22,7 @@ from . import paper_data
 from .io import fmt, pct, provenance, rel_diff, save_figure, table, write_json
 
 D = 0.025                 # blend size of the paper's 12 combinations [m]
-EXTENDED_E = {"lame_extended": 0.0445, "clothoid_extended": 0.044}   # SPEC 2
+EXTENDED_E = {"lame_extended": 0.0445, "clothoid_extended": 0.044}   # docs/conventions.md#adept-cycle-and-blends
 LAME_E_TEXT = 0.125       # the paper's text for the extended Lamé curve [m]
 FD_STEP = 1e-3            # sampling step of the paper-style finite-difference joint acceleration [s]
 PSD_FS = 10_000.0         # sampling rate for spectra [Hz]
@@ -30,7 +30,8 @@ PSD_NPERSEG = 1024
 
 
 def blend_lengths_mm() -> dict:
-    """Table 2: blend lengths [mm] (d = e = 25 mm; extended curves d = 25 mm, e per SPEC 2)."""
+    """Table 2: blend lengths [mm] (d = e = 25 mm; extended curves d = 25 mm, e per
+    docs/conventions.md#adept-cycle-and-blends)."""
     out = {b: float(make_blend(b, D, D).length) * 1e3 for b in BLENDS}
     for key, e in EXTENDED_E.items():
         out[key] = float(make_blend(key.split("_")[0], D, e).length) * 1e3
@@ -121,7 +122,8 @@ def figures(preset: str, out: Path) -> dict:
 
 
 def compute(preset: str = "default", tf: float = 1.0, steps: int = 20000) -> dict:
-    """All kinematic tables as the SPEC 7 JSON structure (plus paper values and provenance)."""
+    """All kinematic tables as the JSON structure of docs/conventions.md#file-formats (plus paper values
+    and provenance)."""
     started = time.time()
     tf, steps = checks.positive("tf", tf, "s"), checks.count("steps", steps, 2)
     result = {"preset": preset, "tf": tf, "blend_length_mm": blend_lengths_mm()}

@@ -2,8 +2,9 @@
 compare it with the baselines.
 
 Thin wrapper around ``jaxflex.optimize.study.optimize_design``: prints the comparison (dwell residual
-on the nominal, perturbed and damped models; peak torque), writes the SPEC 7 JSON, and with
-``--out DIR`` the checkpoint (resumable), ``trajectory.csv`` (t, x, y, q1, q2 at 10 kHz) and figures.
+on the nominal, perturbed and damped models; peak torque), writes the JSON
+(docs/conventions.md#file-formats), and with ``--out DIR`` the checkpoint (resumable),
+``trajectory.csv`` (t, x, y, q1, q2 at 10 kHz) and figures.
 """
 from __future__ import annotations
 

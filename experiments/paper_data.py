@@ -1,7 +1,7 @@
 """The paper's published numbers, used ONLY for the "paper" column of comparisons.
 
-Transcribed from ../shared/paper/seed-paper.txt (tables keep the paper's row/column layout:
-profile -> blend). Nothing in the library reads this module.
+Transcribed from the paper, *Trajectory generation for high speed pick and place robots* (tables
+keep the paper's row/column layout: profile -> blend). Nothing in the library reads this module.
 """
 
 PROFILE_ORDER = ("poly7", "bang_bang", "trap_1_4", "trap_1_8")

@@ -87,12 +87,13 @@ def optimization_section(res: dict, out: Path) -> str:
              "derivatives vanish at the joins) and a monotone motion law with exact boundary conditions "
              "(`jaxflex.profiles.shaped`) - is optimized by gradient (reverse mode through the table build and "
              "the whole second-order rollout, Adam) to minimize the worst absolute residual vibration over "
-             "the uncertainty box of SPEC 6 (a power mean of order 8 of the residual energy at tf and the "
-             "dwell amplitude, in units of the best paper combination's on the payload's nominal model; no "
-             "model is divided by its own reference), with the peak torque bounded by the poly7-Lamé "
-             "combination's on every training model. It trains on a 3 x 3 grid per payload over E x 0.95/1/"
-             "1.05 and payload x 0.9/1/1.1 (the factors that set the frequencies; damping 0, the least damped "
-             "case). Baselines on the same models at equal time, along the best paper combination's path: "
+             "the uncertainty box of docs/conventions.md#uncertainty-box (a power mean of order 8 of the "
+             "residual energy at tf and the dwell amplitude, in units of the best paper combination's on the "
+             "payload's nominal model; no model is divided by its own reference), with the peak torque "
+             "bounded by the poly7-Lamé combination's on every training model. It trains on a 3 x 3 grid "
+             "per payload over E x 0.95/1/1.05 and payload x 0.9/1/1.1 (the factors that set the "
+             "frequencies; damping 0, the least damped case). Baselines on the same models at equal time, "
+             "along the best paper combination's path: "
              "the best paper combination, its ZV and ZVD input shaping (first mode of the place pose) and a "
              "Ruckig jerk-limited profile (if `ruckig` is installed). Every trajectory is evaluated on the "
              "nominal model, on the nine perturbed models, with 1 % damping, and on 200 random models of the "
@@ -100,8 +101,8 @@ def optimization_section(res: dict, out: Path) -> str:
              "+-10 %; `box worst` and `box p95` columns, and the figure of residual against the first-mode "
              "frequency error); the verification re-simulates the best paper combination and the optimized "
              "design at a quarter step and with the full nonlinear model (exponential integrator, 20 us). "
-             "Why this family: with Lamé corners (G2) the same robust objective left 30-36 um at the worst "
-             "perturbed model, the smoothstep family about 1.2 um (`StudyConfig` docstring).", ""]
+             "Why this family: with Lamé corners (G2) the same robust objective left a far larger residual at "
+             "the worst perturbed model than with the smoothstep family (figures in docs/performance.md).", ""]
     if res.get("quick"):
         lines += ["(`--quick`: two optimizer steps on the nominal model, 4 random models of the box and the "
                   "richer model with one extra mode per kind, the 6 kg case only (neither the 0.1 kg case nor the "
@@ -150,7 +151,8 @@ def kinematics_section(results, fig_dir: Path, out: Path) -> str:
         "## 1. Trajectories (paper Section 3)", "",
         "Blend lengths do not depend on the robot; accelerations use the `default` preset for the task "
         "space (Table 5 is geometry-independent) and both presets for the joint space (Table 6). "
-        "SPEC 2 explains the presets: `table6` reproduces Table 6, `default` the natural frequencies; "
+        "docs/conventions.md#frames-and-geometry explains the presets: `table6` reproduces Table 6, `default` "
+        "the natural frequencies; "
         "no placement with Table 3's links reproduces both.", "",
         kinematics.tables_markdown(d), "",
         "Joint accelerations with the `table6` preset:", "",
@@ -206,9 +208,9 @@ def vibration_section(vib: dict, fig_dir: Path, out: Path) -> str:
         "## 3. Vibration study (paper Section 4)", "",
         "Inverse elastodynamic simulation with a perfect controller (motors on the rigid IGM of the "
         "desired path), start from the static equilibrium at the pick pose, then a 0.1 s dwell with the "
-        f"motors holding the place pose. Fast formulation (SPEC 4), step {dt * 1e6:.0f} us over the motion "
-        f"(tf/{g['coarse'] * g['fine']}), {g['dwell_steps']} dwell steps; all 24 runs through one compiled "
-        f"rollout program: {_sweep_timing(vib['timing'])}. "
+        "motors holding the place pose. Fast formulation (docs/conventions.md#fast-model), "
+        f"step {dt * 1e6:.0f} us over the motion (tf/{g['coarse'] * g['fine']}), {g['dwell_steps']} dwell steps; "
+        f"all 24 runs through one compiled rollout program: {_sweep_timing(vib['timing'])}. "
         "Gravity +y (paper: upwards), no damping (as the paper).", "",
         "### Table 7: 6 kg, tf = 0.43 s, along the motion", "",
         *[cmp(c0[m], paper_data.TABLE7[m], m) + "\n" for m in ("max_torque_nm", "rms_acc_error", "max_deflection_mm")],
@@ -241,7 +243,7 @@ def vibration_section(vib: dict, fig_dir: Path, out: Path) -> str:
         f"({c0['max_deflection_mm']['lame']['poly7']:.3f} mm), not the paper's "
         f"{paper_data.TABLE7['max_deflection_mm']['lame']['poly7']} mm: the paper's natural frequencies "
         "(which we reproduce) and its deflections are mutually inconsistent under a perfect controller. "
-        "Torques also depend on the unpublished placement of the cycle (SPEC 2).",
+        "Torques also depend on the unpublished placement of the cycle (docs/conventions.md#frames-and-geometry).",
         "- Residuals at tf are phase-sensitive: a 1 % change of frequency or tf moves them by large "
         "factors, so cell-by-cell agreement is not expected; orderings (trap_1_8 worst, smooth laws "
         "best) are the comparable content.",
@@ -264,19 +266,19 @@ def convergence_section(conv: dict, vib: dict) -> str:
     acc = dt_rows["residual_acc"]
     return "\n".join([
         "## 4. Step convergence and the full nonlinear model", "",
-        "### dt convergence (SPEC 5)", "", convergence.dt_markdown(conv["dt"]), "",
+        "### dt convergence (docs/conventions.md#fast-model)", "", convergence.dt_markdown(conv["dt"]), "",
         ("Every metric is within its limit. " if dt_ok else "NOT every metric is within its limit (see the "
          "table). ")
         + f"`residual_acc` (|e''| at the single instant tf, every mode up to ~18 kHz, undamped, no filter) "
         f"changes by {100 * acc['max_rel_change']:.2f} %. It converges because the rollout's second pass "
         "makes the linearized coefficients continuous in time (`jaxflex.simulate`): with coefficients "
         "frozen per 2.25 ms interval, as in earlier versions, every jump at an interval boundary kicked the "
-        "undamped axial modes, and the kicks did not shrink with the interval (16 % change, no convergence). "
+        "undamped axial modes, and the kicks did not shrink with the interval (no convergence). "
         "`residual_acc_low` is its part carried by the modes below 1 kHz.", "",
         "### Fast formulation vs the full nonlinear model", "",
-        "The sweeps use the fast formulation (SPEC 4): the equations linearized in the small elastic "
-        "coordinates about the rigid motion, coefficients tabulated along the path, exact exponential "
-        "propagation over short intervals, plus one defect-correction pass (continuous coefficients and "
+        "The sweeps use the fast formulation (docs/conventions.md#fast-model): the equations linearized in "
+        "the small elastic coordinates about the rigid motion, coefficients tabulated along the path, exact "
+        "exponential propagation over short intervals, plus one defect-correction pass (continuous coefficients and "
         "the full model's second-order remainder, `simulate.rollout`). The reference is the full nonlinear "
         "model (`jaxflex.model.inverse_dynamics`, passive coordinates from the loop closure at every stage) "
         "integrated by an exponential integrator of order 3 (`jaxflex.reference`): it integrates the stiff "
@@ -285,12 +287,13 @@ def convergence_section(conv: dict, vib: dict) -> str:
         "against classical RK4 at 1 us on both cases.", "",
         convergence.reference_markdown(ref), "",
         f"Largest difference over both cases and all metrics: {100 * rel[worst]:.2f} % (`{worst}`); "
-        + ("every metric within the 0.5 % of SPEC 4." if rel[worst] <= 0.005 else
-           "beyond the 0.5 % of SPEC 4: " + ", ".join(f"`{m}` ({100 * v:.2f} %)" for m, v in rel.items()
+        + ("every metric within the 0.5 % of docs/conventions.md#fast-model." if rel[worst] <= 0.005 else
+           "beyond the 0.5 % of "
+           "docs/conventions.md#fast-model: " + ", ".join(f"`{m}` ({100 * v:.2f} %)" for m, v in rel.items()
                                                     if v > 0.005) + "."
            + (" `residual_acc` carries the undamped ~18 kHz axial modes at one instant; the fast model's "
-              "second-order remainder is sampled every ~0.8 ms and cannot carry their coupling with the "
-              "deflection, which the full model resolves. It stays within the 2 % of single-instant "
-              "values (SPEC 5), and it is the only metric beyond 0.5 %." if
+              "second-order remainder is sampled twice per coarse interval and cannot carry their coupling "
+              "with the deflection, which the full model resolves. It stays within the 2 % of single-instant "
+              "values (docs/conventions.md#fast-model), and it is the only metric beyond 0.5 %." if
               [m for m, v in rel.items() if v > 0.005] == ["residual_acc"] and rel["residual_acc"] < 0.02 else "")),
         ""])

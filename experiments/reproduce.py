@@ -161,13 +161,10 @@ def _optimization(out: Path, quick: bool, key: dict, vib: dict | None = None) ->
     study = StudyConfig()
     steps = 2 if quick else study.train.optimizer.steps
     # Full runs give each study a process of its own: for peak memory, no longer for the mapping limit
-    # (jaxflex.runtime.compiled). The compiled programs hold the memory: one study's about 1.3 GB (20.7
-    # thousand mappings; 0.77 GB resident after ``release_compiled``, 2.1 GB before). Cold runs in one
-    # process on 2026-11-27 evening, the same results bit for bit: with the programs kept while under
-    # half the mapping limit, 19:56 against 20:56 but 4.4 GB resident; released after each study (with
-    # the full model and the gradient compiled ahead in background threads), 20:54 and 3.7 GB; earlier
-    # that day 23:58 and 3.6 GB against 21:53 and 3.0 GB. Quick runs (a smoke test of every step: 2
-    # optimizer steps, nominal models) stay in this process and share its programs.
+    # (jaxflex.runtime.compiled). The compiled programs hold most of a study's memory, and in one
+    # process the studies' programs add up, whether kept or released after each study; the results are
+    # the same bit for bit either way (figures in docs/performance.md). Quick runs (a smoke test of
+    # every step: 2 optimizer steps, nominal models) stay in this process and share its programs.
     isolated = (lambda fn, **kw: fn(**kw)) if quick else run_isolated
     grid = default_grid(robot_preset("default"), [0.43], 0.1)
     # finished optimizations by their inputs: the cycle-time study's design at tf_ref is the 6 kg
@@ -196,7 +193,7 @@ def _optimization(out: Path, quick: bool, key: dict, vib: dict | None = None) ->
                                                                training_set="nominal" if quick else "box")),
                    "cycle-time study")
     res["cycle_time"] = {"dir": "cycle_time", "text": opt.cycle_time_text(ct), "record": ct}
-    shutil.rmtree(memo / WORKSPACE_MEMO, ignore_errors=True)     # the studies' shared workspaces (~8 MB a model)
+    shutil.rmtree(memo / WORKSPACE_MEMO, ignore_errors=True)     # the studies' shared workspaces
     if not quick:
         # the studies' verifications (full model, quarter step) in one process after them, so that its
         # programs compile or load once, not once per study; resumed only for the same designs

@@ -16,7 +16,7 @@ SHORT = {"max_torque_nm": "torque", "rms_acc_error": "rms e''", "max_deflection_
 
 def compute(preset: str = "default", payload: float = 6.0, tf: float = 0.43, dt: float | None = None,
             dwell: float = 0.1, repeats: int = 3) -> dict:
-    """Simulate every combination; returns the SPEC 7 sweep record."""
+    """Simulate every combination; returns the sweep record (docs/conventions.md#file-formats)."""
     started = time.time()
     robot, cycle = robot_preset(preset), cycle_preset(preset)
     res = run_sweep(robot, cycle, [Case(payload, tf)],
@@ -30,7 +30,8 @@ def compute(preset: str = "default", payload: float = 6.0, tf: float = 0.43, dt:
 
 
 def text(rec: dict) -> str:
-    """The sweep record as a table (every SPEC 5 metric per blend and profile, with units) plus timing."""
+    """The sweep record as a table (every metric of docs/conventions.md#metrics per blend and profile,
+    with units) plus timing."""
     head = ["blend", "profile"] + [f"{SHORT.get(m, m)} [{UNITS[m]}]" for m in METRICS]
     rows = [[r["blend"], r["profile"]] + [fmt(r[m], 4) for m in METRICS] for r in rec["results"]]
     t = rec["timing"]

@@ -146,5 +146,5 @@ def duplicated_cells() -> list[str]:
 
 
 def unit(metric):
-    """The unit of a SPEC 5 metric (``jaxflex.metrics.UNITS``)."""
+    """The unit of a metric (docs/conventions.md#metrics; ``jaxflex.metrics.UNITS``)."""
     return UNITS[metric]

@@ -32,7 +32,7 @@ _PUBLIC = {
     "cycle_preset": "jaxflex.robot", "Cycle": "jaxflex.path", "make_cycle": "jaxflex.path",
     "Path": "jaxflex.path", "make_path": "jaxflex.path", "Profile": "jaxflex.profiles",
     "make_profile": "jaxflex.profiles", "shaped": "jaxflex.profiles", "zv": "jaxflex.profiles",
-    "zvd": "jaxflex.profiles", "trajectory": "jaxflex.trajectory", "time_grid": "jaxflex.trajectory",
+    "zvd": "jaxflex.profiles", "profile_eval": "jaxflex.profiles", "profile_values": "jaxflex.profiles", "trajectory": "jaxflex.trajectory", "time_grid": "jaxflex.trajectory",
     "sample_combinations": "jaxflex.combinations", "PRESETS": "jaxflex.names", "BLENDS": "jaxflex.names",
     "DESIGN_BLENDS": "jaxflex.names", "PROFILES": "jaxflex.names",
     # the problem and its discretization
@@ -40,7 +40,7 @@ _PUBLIC = {
     "default_grid": "jaxflex.sweep",
     # simulation
     "Case": "jaxflex.sweep", "PAPER_CASES": "jaxflex.sweep", "SweepConfig": "jaxflex.sweep",
-    "run_sweep": "jaxflex.sweep", "LawEvaluator": "jaxflex.engine", "rollout": "jaxflex.rollout",
+    "run_sweep": "jaxflex.sweep", "sweep_tables": "jaxflex.sweep", "plotting": "jaxflex.plotting", "LawEvaluator": "jaxflex.engine", "rollout": "jaxflex.rollout",
     "design_rollout": "jaxflex.rollout", "STAGES": "jaxflex.rollout", "RolloutModel": "jaxflex.rollout",
     "RolloutState": "jaxflex.rollout", "Design": "jaxflex.designs", "design": "jaxflex.designs",
     "design_path": "jaxflex.designs", "sweep_designs": "jaxflex.design_sweep",

@@ -1,4 +1,5 @@
-"""Corner blends of the Adept cycle (paper Section 3, Figs. 5-6; SPEC 2), parametrized by arc length.
+"""Corner blends of the Adept cycle (paper Section 3, Figs. 5-6; docs/conventions.md#adept-cycle-and-blends),
+parametrized by arc length.
 
 Every blend lives in its own *blend frame*: it starts at the origin on the vertical leg with unit
 tangent (0, 1), the sharp corner it replaces is at (0, d), and it ends at (e, d) on the horizontal leg
@@ -13,8 +14,9 @@ the horizontal leg that the blend consumes. Three families:
   curvature at the join), turning theta1 + theta2 = pi/2; symmetric (theta1 = pi/4) for d = e.
 - ``polar``: polar polynomial r(phi) about the intersection of the leg normals at the tangent
   points, with r, r' = 0 and r'' = r (zero curvature) matched at both ends. For d = e this is the
-  quartic of SPEC 2 (a0 + b phi^2 + c phi^4, R = d); for d != e the unique quintic.
-- ``polar_g3``, ``polar_g4`` (not in the paper; the optimizer's design space, issue 21): the same
+  quartic of docs/conventions.md#adept-cycle-and-blends (a0 + b phi^2 + c phi^4, R = d); for d != e
+  the unique quintic.
+- ``polar_g3``, ``polar_g4`` (not in the paper; the optimizer's design space): the same
   polar construction with more continuity at the joins. G3 also matches r''' = 0 at both ends, so
   the curvature's arc-length derivative is zero there and the path's jerk is continuous (degree 7);
   G4 also matches r'''' = 5 r, so the curvature's second derivative vanishes too (degree 9). From

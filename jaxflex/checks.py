@@ -1,4 +1,4 @@
-"""Eager argument checks shared by every public entry point (SPEC 8).
+"""Eager argument checks shared by every public entry point (docs/conventions.md#bad-input).
 
 Each check runs on the host in plain Python/numpy before anything is traced or compiled, raises a
 ``ValueError`` that names the argument, and returns the value converted (float, int, tuple). Traced

@@ -52,8 +52,9 @@ _program = jax.jit(_stage, static_argnames=("stage",), compiler_options=HOT_LOOP
 def programs(second_order: bool) -> tuple[rl.Stage, ...]:
     """The engine's programs over the stages of a rollout from its tables and samples to its series
     (``rollout.between("first pass", "last pass")``): the second-order model as one program per
-    stage, because inside one program the remainder's thousand-odd small operations cost about twice
-    their own time; the linearized model, which has no remainder, as one program."""
+    stage, because inside one program the remainder's thousand-odd small operations cost much more
+    than their own time (docs/performance.md); the linearized model, which has no remainder, as one
+    program."""
     stages = rl.between("first pass", "last pass")
     return stages if second_order else (rl.compose(stages),)
 
@@ -128,7 +129,7 @@ class LawEvaluator:
         k = len(models.labels)
         self.models, self.path, self.tf, self.dwell, self.grid = models, path, tf, dwell, grid
         # the tables built and kept per model (the rollouts take them one model at a time), in one
-        # copy: 2.3 MB per model on the default path, 0.5 GB for the studies' 212 evaluation models;
+        # copy (they add up over a large set such as the studies' evaluation models, docs/performance.md);
         # the same coefficient program on the same chunks of poses as a stacked build, so the same values.
         # Without ``keep`` every call builds them again (in groups of models, see ``metrics_many``):
         # a few models' tables in memory at a time, the same values.

@@ -1,10 +1,10 @@
 """Small dense linear algebra in pure ``jax.numpy`` (no LAPACK custom calls).
 
 Used by the batched fast rollouts (``jaxflex.simulate``), where tiny (12 x 12) matrices are factorized
-thousands of times inside one vmapped, jitted program. jaxlib's CPU LAPACK kernels (``getrf`` behind ``jnp.linalg.solve``
-and ``inv``) deadlock intermittently when XLA runs several of them concurrently in a large batched
-program (observed with jax 0.10.2 on 2 cores: the process waits forever with all threads idle; the
-same class as jax-ml/jax#24219; neither ``--xla_cpu_multi_thread_eigen=false`` nor synchronous dispatch
+thousands of times inside one vmapped, jitted program. jaxlib's CPU LAPACK kernels (``getrf`` behind
+``jnp.linalg.solve`` and ``inv``) can deadlock intermittently when XLA runs several of them
+concurrently in a large batched program (the process waits forever with all threads idle; the same
+class as jax-ml/jax#24219; neither ``--xla_cpu_multi_thread_eigen=false`` nor synchronous dispatch
 avoids it). The whole package therefore avoids LAPACK solves: the model (``jaxflex.model``) uses
 ``spd_solve`` for its mass matrices and ``solve`` for the static Newton step. These eliminations are
 plain arithmetic, so they fuse, batch and differentiate like any other jnp code and cannot hit that
@@ -13,8 +13,7 @@ bug. Only ``jnp.linalg.eigh`` remains (modal analysis, never batched inside the 
 Derivatives: each function has a custom JVP from the matrix identities (d(A^-1) = -A^-1 dA A^-1,
 dL = L Phi(L^-1 dA L^-T) for Cholesky, ...), made of matrix products only. Differentiating through
 the eliminations themselves would also be exact, but reverse mode through hundreds of tiny unrolled
-or looped updates is an order of magnitude slower than these few products (measured on the rollout's
-propagators: 102 ms vs 6.5 ms forward).
+or looped updates is far slower than these few products (docs/performance.md).
 """
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""Linearized elastodynamics about the rigid motion, tabulated along the path (SPEC 4 fast formulation).
+"""Linearized elastodynamics about the rigid motion, tabulated along the path (the fast model of
+docs/conventions.md#fast-model).
 
 With the motors following the rigid IGM of a path P(s), q_a = q_a(s), and
     q_a' = q_a,s s',   q_a'' = q_a,ss s'^2 + q_a,s s''.
@@ -34,12 +35,11 @@ from jaxflex import trees
 from jaxflex.path import Path, path_frame
 from jaxflex.robot import Robot, joint_motion
 
-# nodes per path segment (line, blend, traverse, blend, line). The blends need the most: with 48 nodes
-# on each, the optimized smoothstep design (long blends, e ~ 100 mm; 1.3 um of dwell residual) read
-# 7 % low (1.25 um; 1.345 with 96, 1.340 with 192 on the blends and twice the nodes elsewhere); the
-# paper's combinations moved by 0.1 % at 6 kg (lame/trap_1_4 16.616 um against 16.601 and 16.601)
-# and by up to 2 % at 0.1 kg (clothoid/poly7 at 0.3 s: 17.9 -> 17.6 um). Doubling the straight
-# segments' nodes changes the paper sweep's residuals by < 3e-5 (relative).
+# nodes per path segment (line, blend, traverse, blend, line). The blends need the most: with half as
+# many nodes on each blend, long blends with a small dwell residual (such as the optimized smoothstep
+# design) read it noticeably low, and doubling these counts no longer changes it appreciably. The
+# straight segments need few: doubling their nodes leaves the paper sweep's residuals practically
+# unchanged. The node study is in docs/performance.md.
 SEGMENT_NODES = (6, 96, 48, 96, 6)
 
 
@@ -130,8 +130,8 @@ class Coeffs(NamedTuple):
 
 def coeff_shapes(robot: Robot) -> Coeffs:
     """The shapes and dtypes of ``pose_coeffs(robot, ...)`` (``jax.ShapeDtypeStruct`` leaves, float64)
-    from the robot's mode counts alone: no trace of the model (tracing it takes seconds, which
-    ``workspace.workspace_shapes`` would spend before anything can start compiling)."""
+    from the robot's mode counts alone: no trace of the model (tracing it is slow, and
+    ``workspace.workspace_shapes`` would spend that time before anything can start compiling)."""
     ne = mdl.layout(robot).ne
     square, row, vec, pair = (ne, ne), (2, ne), (ne,), (2,)
     shapes = dict(mass=square, m_ae=row, f0=vec, f1=vec, f2=vec, k0=square, k1=square, k2=square, c0=square,
@@ -204,8 +204,8 @@ def remainder(robot: Robot, qa, qa1, qa2, ds, dds, x, qedd):
     # R(tz) at t = 0, 1/2, -1/2, 1, -1 (one vmapped trace of the model) and R'(0) z by Richardson
     # extrapolation of the central differences (exact up to the fifth-order term, |z|^5 ~ 1e-25
     # here): the same value as a JVP to round-off (~1e-12 N of ~1e-3..1e-2 N), without nesting the
-    # model's own derivatives inside a second derivative (the compiled rollout and its gradient are
-    # 2-3x smaller)
+    # model's own derivatives inside a second derivative, which keeps the compiled rollout and its
+    # gradient much smaller
     r0, rp, rm, r1, r1m = jax.vmap(lambda t: full(t * z))(jnp.asarray(_REMAINDER_T))
     return (r1 - r0) - (8.0 * (rp - rm) - (r1 - r1m)) / 6.0
 
@@ -297,11 +297,10 @@ def _window_sum(v, start, t):
     interpolant's slope sum_k w_k'(t) v[start + k] (F,) times dt, so reverse mode stores one
     slope per sample where the chain rule through the weights would store the window (4, F).
 
-    (From 6b029e5 to this version the tangent in v was a dense row of K weights times dv, whose
-    transpose is a matrix product: faster in wall time for one program alone, 8.7 against
-    15.9 ms for the 4417 nodes of a rollout, because the product runs on both cores, but 3x the
-    CPU time (27 against 8 ms measured on 2026-11-28), and the design gradient runs two models
-    side by side on the two cores, so its CPU time is what counts.)"""
+    The tangent in v is a gather rather than a dense row of K weights times dv: the dense form's
+    transpose is a matrix product, faster in wall time for one program alone because it runs on
+    several cores, but it costs more CPU time, and the design gradient runs two models side by
+    side, so CPU time is what counts (docs/performance.md)."""
     return jnp.tensordot(cubic_weights(t), v[start + jnp.arange(4)], axes=1)
 
 

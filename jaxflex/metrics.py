@@ -1,4 +1,5 @@
-"""Per-run metrics of SPEC 5 from a simulation ``Series`` (pure jnp: jit- and vmap-friendly).
+"""Per-run metrics (docs/conventions.md#metrics) from a simulation ``Series`` (pure jnp: jit- and
+vmap-friendly).
 
 e = X_flexible - X_desired at the end effector. Over the motion [0, tf]: ``max_torque_nm`` max |tau|
 over both motors, ``rms_acc_error`` RMS of |e''| [m/s^2], ``max_deflection_mm`` max |e| (includes the

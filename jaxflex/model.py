@@ -13,12 +13,13 @@ paper's Eqs. 7 and 9 are the same matrices written in the beam frame), the elast
 and the gravity energy Eq. 14-16 with the gravity vector of the robot. The payload is a point mass at
 the end effector (x, y); an optional rotor inertia acts on q_a.
 
-The richer model (``richer``; SPEC 6: it validates designs and never trains them) gives every link
-both kinds of modes: the proximal links also stretch (``n_axial_proximal`` fixed-free bar modes after
-their bending ones) and the distal links also bend (``n_bending_distal`` clamped-free modes in the
-frame of the link, after their axial ones). A link with both has the exact kinetic energy of
-Eq. 4 with u = (l xi + u_x, u_y) in its frame, which couples the two sets through the frame
-rotation (``beams.cross_mass``); its tip moves by (u_x(1), u_y(1)) in the loop closure.
+The richer model (``richer``; it validates designs and never trains them,
+docs/conventions.md#elastodynamic-model) gives every link both kinds of modes: the proximal links also
+stretch (``n_axial_proximal`` fixed-free bar modes after their bending ones) and the distal links
+also bend (``n_bending_distal`` clamped-free modes in the frame of the link, after their axial ones).
+A link with both has the exact kinetic energy of Eq. 4 with u = (l xi + u_x, u_y) in its frame, which
+couples the two sets through the frame rotation (``beams.cross_mass``); its tip moves by
+(u_x(1), u_y(1)) in the loop closure.
 
 The loop closure f(q) = 0 (Eq. 18, deflections taken at the distal end xi = 1) is solved for q_p in
 closed form (tip of each proximal beam, then intersection of two circles whose radii are the
@@ -140,9 +141,9 @@ def stiffness_blocks(robot: Robot):
 
 
 def richer(robot: Robot, n: int = 3) -> Robot:
-    """The richer validation model of ``robot`` (SPEC 6): every link flexible in bending and in
-    tension-compression, ``n`` modes of each kind it lacks (axial on the proximal, bending on the
-    distal links) added to its own."""
+    """The richer validation model of ``robot`` (docs/conventions.md#elastodynamic-model): every link
+    flexible in bending and in tension-compression, ``n`` modes of each kind it lacks (axial on the
+    proximal, bending on the distal links) added to its own."""
     return robot.replace(n_axial_proximal=int(n), n_bending_distal=int(n))
 
 
@@ -485,7 +486,7 @@ def residual(robot: Robot, qa, qe, qad, qed, qadd, qedd) -> jax.Array:
     The same quantity as ``reduced(...).mass @ acc + reduced(...).force`` to round-off, without
     forming W or M_r: W v = [v; dq_p/dq_i v] and W^T g = g_i + (dq_p/dq_i)^T g_p are directional
     derivatives of the closed-form loop closure (two JVPs and one VJP instead of its (8, 2 + ne)
-    Jacobian and the (N, N) x (N, 2 + ne) products); about 0.6x the cost of ``reduced``. The
+    Jacobian and the (N, N) x (N, 2 + ne) products), so it costs less than ``reduced``. The
     second-order remainder (``linearized.remainder``) evaluates it; its terms one by one are
     ``residual_term``."""
     lay, q, qd, qdd, project = _moving_state(robot, qa, qe, qad, qed, qadd, qedd)
@@ -510,7 +511,7 @@ def residual_term(robot: Robot, qa, qe, term: str, qad=None, qed=None, qadd=None
     So residual = potential + motion + damping forces, and at q' = 0 the motion term is the inertia
     term. Evaluating a term alone skips the others' arithmetic, and their derivatives: the
     linearization coefficients (``linearized.pose_coeffs``) take each one's Jacobian by q_e where a
-    difference of whole residuals' would cost about three times as much (and lose the small
+    difference of whole residuals' would cost several times as much (and lose the small
     s'' and s'^2 stiffness terms to round-off against the large elastic stiffness)."""
     if term not in RESIDUAL_TERMS:
         raise ValueError(f"term must be one of {RESIDUAL_TERMS}, got {term!r}")

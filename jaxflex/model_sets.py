@@ -2,7 +2,7 @@
 stiffness, damping), stacked along a leading axis, each with a structured identity (``ModelId``).
 
 Used by the evaluation engine (``jaxflex.engine.LawEvaluator``), the optimization studies' training
-and evaluation sets and the robustness reports (SPEC 6).
+and evaluation sets and the robustness reports (docs/conventions.md#uncertainty-box).
 """
 from __future__ import annotations
 

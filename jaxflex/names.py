@@ -1,7 +1,7 @@
 """The names a user chooses from: robot presets, blend families and motion laws. Plain Python (no
 JAX), so that the command line can offer them without importing the library's numerics."""
 
-PRESETS = ("default", "table6")                         # robot geometry presets (docs/conventions.md)
+PRESETS = ("default", "table6")                         # robot presets (docs/conventions.md#frames-and-geometry)
 BLENDS = ("lame", "clothoid", "polar")                  # the paper's blend families
 SMOOTH_BLENDS = ("smoothstep", "polar_g3", "polar_g4")  # more continuity at the joins (not in the paper)
 ALL_BLENDS = BLENDS + SMOOTH_BLENDS

@@ -1,4 +1,5 @@
-"""The blended Adept pick-and-place path (paper Fig. 1, Section 3; SPEC 2), parametrized by arc length.
+"""The blended Adept pick-and-place path (paper Fig. 1, Section 3; docs/conventions.md#adept-cycle-and-blends),
+parametrized by arc length.
 
 The cycle goes from the pick point up by ``h`` (along ``lift``), across by ``l`` to above the place
 point, and down by ``h``. Each of the two corners is replaced by a blend (``jaxflex.blends``) that

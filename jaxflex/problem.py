@@ -26,7 +26,7 @@ class Timing(NamedTuple):
     grid: Grid | None = None
 
     def checked(self) -> "Timing":
-        """The timing with float tf and dwell; ValueError naming a bad field (SPEC 8)."""
+        """The timing with float tf and dwell; ValueError naming a bad field (docs/conventions.md#bad-input)."""
         tf, dwell = checks.positive("tf", self.tf, "s"), checks.positive("dwell", self.dwell, "s")
         if self.grid is not None:
             check_grid(self.grid)

@@ -1,4 +1,4 @@
-"""Motion laws S(eta), eta = t / tf in [0, 1] (paper Section 3, Fig. 7; SPEC 2).
+"""Motion laws S(eta), eta = t / tf in [0, 1] (paper Section 3, Fig. 7; docs/conventions.md#motion-laws).
 
 A motion law is monotone from S(0) = 0 to S(1) = 1 and gives the fraction of the path covered at the
 normalized time eta. Families:
@@ -238,8 +238,7 @@ def _profile_eval_jit(profile: Profile, eta, side: int) -> LawValues:
 def profile_values(profile: Profile, eta, side: int = 1) -> LawValues:
     """``profile_eval`` on concrete values (plots, tables) through one compiled program per kind of
     law and shape of eta (the display name does not matter). Evaluated eagerly, a law dispatches
-    every small operation on its own: the shaped law took 4.6 s for one curve in a fresh process
-    (every operation compiled), 0.1 s this way."""
+    (and in a fresh process compiles) every small operation on its own, which is far slower."""
     return _profile_eval_jit(dataclasses.replace(profile, name=""), jnp.asarray(eta, dtype=float), side)
 
 

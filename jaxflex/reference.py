@@ -12,8 +12,8 @@ Two integrators:
   (``_exprb3``). The elastic modes up to the 18.6 kHz axial ones are stiff for explicit methods; it
   integrates them exactly through matrix functions and treats only the slowly varying remainder
   explicitly, so its step follows the motion, not the highest mode: at 20 us (4 steps per period of
-  that mode) it agrees with RK4 at 1 us within 2e-4 relative on every SPEC 5 metric of the two paper
-  cases, in about a tenth of the time (``tests/test_reference.py``).
+  that mode) it agrees with RK4 at 1 us within 2e-4 relative on every metric (docs/conventions.md#metrics)
+  of the two paper cases, at a small fraction of RK4's cost (``tests/test_reference.py``).
 - ``rk4``: classical RK4, conditionally stable (|lambda h| < 2.78, so h below about 2.4e-5 s), and
   its numerical damping of the highest mode is small only for h of a few microseconds. It costs four
   model evaluations per step: the slow ground truth that the exponential integrator is checked against.
@@ -180,9 +180,9 @@ WINDOW = 32      # exprb3: steps per Jacobian of the field (a multiple of it div
 MIN_SQUARINGS = 5   # exprb3: the matrix functions' least squarings (20 us steps need 4-5; each costs a small product)
 RUN_BLOCK = 2    # runs per batch of the programs: more runs go in batches of this many, fewer are padded (the
                  # first run repeated, then dropped). Every call then shares one set of programs (each
-                 # batch size compiles its own: 47 s on a 2-core CPU, ``reproduce`` 2026-11-27): the
-                 # studies' checks of 2 trajectories and the paper cases' of 4 laws. A batch of 4 took
-                 # 14.4 s against 8.6 s for one of 2 (the default step and tf 0.43 s, hot programs).
+                 # batch size compiles its own, which is slow): the studies' checks of 2 trajectories
+                 # and the paper cases' of 4 laws. A batch of 4 would pad the studies' 2 runs and take
+                 # markedly longer than a batch of 2 (docs/performance.md).
 
 
 def reference_rollout(robot: Robot, path: Path | Sequence[Path], profile: Profile | Sequence[Profile], tf: float,
@@ -193,7 +193,8 @@ def reference_rollout(robot: Robot, path: Path | Sequence[Path], profile: Profil
     ``method``: ``"exprb3"`` (default), the third-order exponential integrator ``_exprb3`` with the
     field's Jacobian refreshed every ``WINDOW`` steps, which integrates the stiff elastic modes
     exactly and so takes steps far above their period (default dt 2e-5 s; against RK4 at 1e-6 s it
-    agrees within 2e-4 relative on every SPEC 5 metric of the paper cases, ``tests/test_reference.py``);
+    agrees within 2e-4 relative on every metric of the paper cases, docs/conventions.md#metrics and
+    ``tests/test_reference.py``);
     or ``"rk4"``, classical RK4, conditionally stable (dt <= 2e-5 s for the default robot), accurate
     for the kHz axial modes only at dt of a few microseconds (default 1e-5 s), the slow ground truth.
 

@@ -1,4 +1,5 @@
-"""Robot parameters (paper Table 3), presets (SPEC 2) and rigid kinematics of the five-bar.
+"""Robot parameters (paper Table 3), presets (docs/conventions.md#frames-and-geometry) and rigid kinematics
+of the five-bar.
 
 The five-bar has motors at B1 = (-a, 0) and B2 = (+a, 0); proximal links (length l1, angle q_i from
 the x axis) end at the elbows E_i, distal links (length l2) meet at the end effector X. The working
@@ -32,7 +33,8 @@ class Robot:
     ``n_bending`` and ``n_axial`` numbers of assumed modes of the proximal (bending) and distal (axial)
     links; ``n_axial_proximal`` and ``n_bending_distal`` (default 0, the paper's model) add tension-
     compression modes to the proximal links and bending modes to the distal links: the richer model
-    (``jaxflex.model.richer``) that validates designs and never trains them (SPEC 6).
+    (``jaxflex.model.richer``) that validates designs and never trains them
+    (docs/conventions.md#elastodynamic-model).
     """
 
     l1: jax.Array
@@ -134,7 +136,8 @@ def make_robot(a=0.10, modes=(1, -1), *, l1=0.24, l2=0.38079, diameter=0.035, rh
 
 
 def robot_preset(name: str = "default", **overrides) -> Robot:
-    """Robot of a SPEC 2 preset (``default`` or ``table6``); keyword overrides go to ``make_robot``."""
+    """Robot of a preset (``default`` or ``table6``, docs/conventions.md#frames-and-geometry); keyword
+    overrides go to ``make_robot``."""
     _check_name(name)
     a, modes, pick, _, _ = _PRESET_DATA[name]
     kw = dict(a=a, modes=modes, reference_point=pick)
@@ -143,7 +146,8 @@ def robot_preset(name: str = "default", **overrides) -> Robot:
 
 
 def cycle_preset(name: str = "default", h: float = 0.025, l: float = 0.35) -> Cycle:
-    """Adept cycle placement of a SPEC 2 preset, centred on the symmetry axis (h, l in m)."""
+    """Adept cycle placement of a preset (docs/conventions.md#frames-and-geometry), centred on the
+    symmetry axis (h, l in m)."""
     _check_name(name)
     if not (np.ndim(l) == 0 and np.isfinite(float(l)) and float(l) > 0):
         raise ValueError(f"traverse length l must be finite and > 0 m, got {l}")

@@ -161,8 +161,10 @@ def between(first: str | None = None, last: str | None = None) -> tuple[Stage, .
     return STAGES[i:j]
 
 
-def remaining(state: RolloutState, stages=STAGES) -> tuple[Stage, ...]:
-    """The stages still to run on ``state``: from the first one with an output not yet in it."""
+def remaining(state: RolloutState, stages=None) -> tuple[Stage, ...]:
+    """The stages still to run on ``state`` (of ``stages``, default ``STAGES``): from the first one
+    with an output not yet in it."""
+    stages = STAGES if stages is None else stages
     for i, stage in enumerate(stages):
         if any(getattr(state, name) is None for name in stage.writes):
             return tuple(stages[i:])

@@ -20,8 +20,8 @@ modes, an artefact that does not shrink with the interval and dominated |e''| at
 second pass adds the force of the coefficients' variation (linear in time between the boundary
 values), so the effective coefficients are continuous (``Grid.continuous``); (2) given the robot,
 the full model's second-order remainder along the first pass (``Grid.remainder_points`` samples per
-interval), which brings every metric within about 0.3 % of the full nonlinear model
-(tests/test_reference.py).
+interval), which brings every metric close to the full nonlinear model (within the tolerance of
+docs/conventions.md#fast-model; tests/test_reference.py).
 
 All functions are pure, for one trajectory; ``jaxflex.rollout`` composes them into the stages of a
 rollout.

@@ -47,7 +47,7 @@ def default_grid(robot: Robot, tfs, dwell: float, dt: float | None = None) -> Gr
     dt = 1e-4 if dt is None else checks.positive("dt", dt, "s")
     dwell = checks.positive("dwell", dwell, "s")
     tf_max = max(checks.positives("tf", tfs, "s"))
-    coarse = 8 * max(1, round(tf_max / 8 / 2.25e-3))         # ~2.25 ms frozen intervals (dt study)
+    coarse = 8 * max(1, round(tf_max / 8 / 2.25e-3))         # ~2.25 ms frozen intervals (docs/performance.md)
     fine = max(1, math.ceil(tf_max / coarse / dt))
     dwell_steps = max(1, math.ceil(dwell / dt))
     c = math.sqrt(float(robot.young) / float(robot.rho))
@@ -109,17 +109,19 @@ def _stacked_tables(robot, cycle, payloads, blends, d, e, n):
 
 @dataclasses.dataclass(frozen=True)
 class SweepConfig:
-    """How ``run_sweep`` builds and runs the combinations (defaults: the paper's sweep, SPEC 3-4).
+    """How ``run_sweep`` builds and runs the combinations (defaults: the paper's sweep,
+    docs/conventions.md#adept-cycle-and-blends and docs/conventions.md#fast-model).
 
     blends, profiles: the blend families (``jaxflex.blends.BLENDS``) and motion laws
     (``jaxflex.profiles.PROFILES``); every pair is simulated for every case. d, e [m], n: the corner
     blends' parameters (e None: e = d; the paper's d = e = 25 mm, n = 3). dwell [s]: the time
     simulated after tf. grid: the rollout grid (None: ``default_grid`` for the cases' tf, with the
     step ``dt`` [s] if given). second_order (default): the full model's second-order remainder is
-    added (``simulate.rollout``; within about 0.3 % of the full nonlinear model on every metric);
-    False: the linearized model. with_series: keep every rollout's ``Series``. repeats: sweeps
-    timed after the first (``SweepResult.run_s`` is their median); timed=False: none (the results
-    only). progress: report the stages on stderr (``jaxflex.progress``)."""
+    added (``simulate.rollout``; every metric close to the full nonlinear model, within the tolerance
+    of docs/conventions.md#fast-model); False: the linearized model. with_series: keep every rollout's
+    ``Series``. repeats: sweeps timed after the first (``SweepResult.run_s`` is their median);
+    timed=False: none (the results only). progress: report the stages on stderr
+    (``jaxflex.progress``)."""
 
     blends: tuple = BLENDS
     profiles: tuple = PROFILES
@@ -137,7 +139,7 @@ class SweepConfig:
 
     def checked(self, cycle) -> "SweepConfig":
         """The configuration with tuples, floats and e filled in; ValueError naming a bad field
-        (SPEC 8), before anything compiles."""
+        before anything compiles (docs/conventions.md#bad-input)."""
         blends, profiles = tuple(self.blends), tuple(self.profiles)
         e = self.d if self.e is None else self.e
         dwell = checks.positive("dwell", self.dwell, "s")
@@ -198,8 +200,8 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES,
     persistent compilation cache makes it short after the first run on a machine); ``compile_s``
     the first sweep (every rollout through the engine's one program, and the metrics) minus one
     run; ``run_s`` the median of ``config.repeats`` sweeps after compilation. With
-    ``config.timed=False`` the timed reruns are skipped when only the results are wanted (half the
-    run time): ``compile_s`` is then the first sweep's wall time (compilation and one run) and
+    ``config.timed=False`` the timed reruns are skipped when only the results are wanted (a shorter
+    run): ``compile_s`` is then the first sweep's wall time (compilation and one run) and
     ``run_s`` is nan. The linearized model alone (``second_order=False``) still takes two passes,
     the second one making the coefficients continuous; ``grid=Grid(..., continuous=False)`` makes
     it one pass.
@@ -262,7 +264,8 @@ def _check_finite(mets, blends, profiles, cases):
 
 
 def results_table(res: SweepResult, case_index: int) -> list[dict]:
-    """Per-run records (SPEC 7 'results' entries) for one case."""
+    """Per-run records (the 'results' entries of ``jaxflex sweep --json``, docs/conventions.md#file-formats)
+    for one case."""
     out = []
     for i, b in enumerate(res.blends):
         for j, p in enumerate(res.profiles):

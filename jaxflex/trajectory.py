@@ -1,6 +1,6 @@
 """Trajectories = path x motion law x duration (paper Section 3): task and joint space samples.
 
-X(t) = P(s(t)) with s(t) = L S(t / tf) (arc-length parametrization, docs/conventions.md), so
+X(t) = P(s(t)) with s(t) = L S(t / tf) (arc-length parametrization, docs/conventions.md#adept-cycle-and-blends), so
     X' = T s',  X'' = K s'^2 + T s'',  X''' = K' s'^3 + 3 K s' s'' + T s''',
 with T, K, K' the arc-length derivatives of the path. Joint motion from the rigid IGM by
 forward-mode autodiff. ``combinations`` stacks the 12 paper combinations (or any blends x

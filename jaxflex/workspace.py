@@ -113,8 +113,8 @@ def workspace_shapes(robot: Robot, cycle: Cycle, spacing: float = 0.005, models:
     ``jax.ShapeDtypeStruct``), or with ``models`` = K of ``tables.build_workspaces`` for a stack of K
     robots like ``robot``, without building it, so that a program taking the workspace can start
     compiling (``jaxflex.runtime.compiled.compile_ahead``) while the tables are built: from the
-    coefficients' shapes (``linearized.coeff_shapes``, no trace of the model, which would take
-    seconds before anything could start), through a trace of ``combine_probes`` only."""
+    coefficients' shapes (``linearized.coeff_shapes``, no trace of the model, which is slow and would
+    delay everything), through a trace of ``combine_probes`` only."""
     nu, nv = grid_shape(cycle, spacing)
     lead = () if models is None else (int(models),)
     probes = len(PROBES)
@@ -134,7 +134,7 @@ def _bicubic(block, tu, tv):
 
 def _bicubic_jvp(primals, tangents):
     """The interpolant's tangent from its two slopes (d/dtu, d/dtv), so that reverse mode keeps these
-    two (field-sized) slopes per node rather than the 16 grid values of the stencil (8x less memory
+    two (field-sized) slopes per node rather than the 16 grid values of the stencil (much less memory
     in the design gradient, whose tables are interpolated at every node of every model)."""
     block, tu, tv = primals
     dblock, dtu, dtv = tangents
@@ -179,11 +179,10 @@ def interpolate_nodes(ws: Workspace, xs) -> dict:
     """``interpolate_basis`` at the positions xs (N, 2) [m]: leaves with a leading axis N.
 
     The nodes go ``NODE_BATCH`` at a time (``lax.map``), not all as one batch: a batch of every node
-    gathers all the stencils first (16 x 2320 values per node on the default model, 75 MB for a
-    path's 252 nodes) and reads them back, while a few nodes' stencils stay in cache. Each step is
-    the same batched interpolant, so the values and their derivatives equal the one-batch form's bit
-    for bit (the design gradient's value and gradient, measured); the design gradient's path stage
-    ran in 16 ms instead of 31 (one 6 kg model, hot programs, 2 cores)."""
+    gathers all the stencils first (16 x 2320 values per node on the default model) and reads them
+    back from memory, while a few nodes' stencils stay in cache, so the design gradient's path stage
+    runs faster (docs/performance.md). Each step is the same batched interpolant, so the values and
+    their derivatives equal the one-batch form's bit for bit."""
     return trees.map_packed(lambda v: jax.lax.map(lambda x: _stencil_at(ws, v, x), xs, batch_size=NODE_BATCH),
                             ws.values, lead=2)
 

@@ -1,4 +1,4 @@
-"""Baselines for the optimized designs (SPEC 6), evaluated on the same model and path.
+"""Baselines for the optimized designs (docs/conventions.md#optimization), evaluated on the same model and path.
 
 - the paper's laws (``jaxflex.profiles.make_profile``) and their input-shaped versions (ZV, ZVD tuned to
   the first locked-motor mode at the place pose, equal total motion time: ``shaper_profiles``);

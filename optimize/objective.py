@@ -1,4 +1,4 @@
-"""Design space and residual-vibration objective (SPEC 6).
+"""Design space and residual-vibration objective (docs/conventions.md#optimization).
 
 Parameters are unconstrained reals, decoded into a valid design by construction, per corner
 (pick corner, place corner):
@@ -20,11 +20,11 @@ set of payloads, stiffness and payload perturbations: the robust variant) with w
 by default), tau the peak motor torque and tau_max its bound (``Scales``). p = 1 is the weighted
 mean (the studies' default, each model scaled by the reference on itself); a large p a smooth
 worst case (``StudyConfig(robust_power=8, absolute=True)``: absolute references, the reference law
-on the payload case's nominal model, one constant per case, SPEC 6). J = 0 for a
-design as good as the reference on every model; a design with 10x less residual amplitude and
-energy scaled alike scores log(1/100) = -4.6. The log keeps the gradient's scale (and Adam's
-steps) meaningful across the orders of magnitude the residual spans during an optimization. tf
-is fixed.
+on the payload case's nominal model, one constant per case, docs/conventions.md#uncertainty-box).
+J = 0 for a design as good as the reference on every model; a design with 10x less residual
+amplitude and energy scaled alike scores log(1/100) = -4.6. The log keeps the gradient's scale (and
+Adam's steps) meaningful across the orders of magnitude the residual spans during an optimization.
+tf is fixed.
 """
 from __future__ import annotations
 
@@ -51,7 +51,7 @@ from .config import BLEND_FAMILY
 
 N_MIN, N_MAX = 2.0, 8.0
 TORQUE_WEIGHT = 1e5     # penalty weight on (peak torque / bound - 1)^2: 1 % excess costs 10 in J (a
-                        # factor e^10 in residual), so the bound holds to ~1e-4 at the optimum
+                        # factor e^10 in residual), so the bound holds closely at the optimum
 
 
 class Params(NamedTuple):
@@ -130,12 +130,11 @@ def over_models(fn, *batched):
 
     Up to ``VMAP_MODELS`` models are vmapped. More run one at a time (``lax.map``) with ``fn``
     rematerialized in reverse mode (``jax.checkpoint``): the backward pass then holds one model's
-    rollout at a time instead of all K. The design gradient on the 9 box models (the hot program, 2
-    cores, cold): 0.23 GiB of XLA temporary memory against 1.84 vmapped, 60-69 s to compile against
-    43-50; a step takes 1.32 s against 1.00 with glibc's malloc on huge pages (the CLI's setting),
-    1.33 against 1.86 without; the same value and gradient to round-off (3e-13 relative). The
-    optimizer differentiates the design objective model by model instead (``optimize.staged``:
-    about half that compile time); this serves the law objective and the one-program gradient."""
+    rollout at a time instead of all K. That takes a small fraction of the vmapped program's XLA
+    temporary memory, at the cost of a longer compilation, and gives the same value and gradient to
+    round-off (figures in docs/performance.md). The optimizer differentiates the design objective
+    model by model instead (``optimize.staged``, which compiles sooner); this serves the law
+    objective and the one-program gradient."""
     if _count(batched) <= VMAP_MODELS:
         return jax.vmap(fn)(*batched)
     remat = jax.checkpoint(fn)

@@ -113,9 +113,11 @@ RESIDUAL_ROW = (1.0, 0.0)       # the cotangents of the head's outputs (r_k, tau
 TORQUE_ROW = (0.0, 1.0)
 
 
-def cache_size() -> int:
-    """Executables the staged programs compiled in this process."""
-    return sum(p.cache_size() for p in _PROGRAMS.values()) + _combined._cache_size()
+def cache_size(stages_only: bool = False) -> int:
+    """Executables the staged programs compiled in this process (``stages_only``: the stages'
+    forward and backward programs alone, without the small program that combines the models)."""
+    own = sum(p.cache_size() for p in _PROGRAMS.values())
+    return own if stages_only else own + _combined._cache_size()
 
 
 class _Chain:

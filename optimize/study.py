@@ -65,7 +65,7 @@ from .workspaces import training_workspaces
 
 
 class DesignStudy(NamedTuple):
-    """Everything the study measured. ``evaluations[set][candidate]`` is a metrics dict name -> (K,)
+    """Everything the study computed. ``evaluations[set][candidate]`` is a metrics dict name -> (K,)
     array over that set's models; ``sets`` maps a set name to its models' ``ModelId``; ``paths`` holds the
     best paper path ("paper") and the optimized one ("optimized")."""
 

@@ -135,11 +135,12 @@ def reference_scales(evaluator: LawEvaluator, law, torque_bound, tf: float | Non
 
 def scales_from_metrics(ref: dict, torque_bound, weights=None, models: ModelSet | None = None) -> Scales:
     """``reference_scales`` from the reference law's metrics (name -> (K,)) on the models. With
-    ``models`` the scales are absolute (docs/conventions.md#optimization): every model of a payload case is divided by the
-    reference's vibration energy and mean-square dwell amplitude on that case's nominal model, the
-    same constants for the whole case, so the objective compares absolute residuals across the
-    perturbed models (a per-model reference would follow its own luck: the paper combinations'
-    residuals swing 10x with 1 % of model change). Without ``models``: each model by its own."""
+    ``models`` the scales are absolute (docs/conventions.md#optimization): every model of a payload
+    case is divided by the reference's vibration energy and mean-square dwell amplitude on that
+    case's nominal model, the same constants for the whole case, so the objective compares absolute
+    residuals across the perturbed models (a per-model reference would follow its own luck: the paper
+    combinations' residuals swing widely with small model changes, docs/conventions.md#uncertainty-box).
+    Without ``models``: each model by its own."""
     energy = np.asarray(ref["residual_energy"], dtype=float)
     amp = np.asarray(ref["dwell_residual_mm"], dtype=float) * 1e-3
     if models is not None:

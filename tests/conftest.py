@@ -8,28 +8,26 @@ import shutil
 import tempfile
 
 # The suite is mostly XLA compilation of programs that then run for well under a second: compile
-# them with LLVM's quick optimization level (about a third less compile time; the programs run up to
-# 1.5x slower and agree with the fully optimized ones to round-off, ~1e-12 relative) and with XLA's
-# classic elemental emitters instead of the fusion emitters (the optimizer's gradient: 20 s instead
-# of 27 s, and it runs faster). Each of the two xdist workers has one core of its own: LLVM code
-# generation in one thread (XLA splits a module into up to 32 parts compiled by a thread pool) and
-# single-threaded Eigen calls, so that the workers' threads do not compete for the two cores
-# (measured with JAXFLEX_THREADS=1 below: 304 s and 587 CPU-seconds for the suite against 333 s and
-# 643). Set XLA_FLAGS yourself to test with other options. Before jax is imported: the backend
-# reads it once.
+# them with LLVM's quick optimization level (less compile time; the programs run somewhat slower and
+# agree with the fully optimized ones to round-off) and with XLA's classic elemental emitters instead
+# of the fusion emitters (the optimizer's gradient compiles faster, and runs faster). Each of the two
+# xdist workers has one core of its own: LLVM code generation in one thread (XLA splits a module into
+# up to 32 parts compiled by a thread pool) and single-threaded Eigen calls, so that the workers'
+# threads do not compete for the two cores (the measurements are in docs/performance.md). Set
+# XLA_FLAGS yourself to test with other options. Before jax is imported: the backend reads it once.
 if "XLA_FLAGS" not in os.environ:
     os.environ["XLA_FLAGS"] = ("--xla_backend_optimization_level=0 --xla_cpu_use_fusion_emitters=false "
                                "--xla_cpu_parallel_codegen_split_count=1 --xla_cpu_multi_thread_eigen=false")
 
 # Two xdist workers already keep both cores busy: each runs its engine calls one after another
 # (``jaxflex.runtime.threads``: JAXFLEX_THREADS=1) instead of from a thread per core, which would put four
-# busy threads on two cores (measured: about 60 s less CPU time over the suite, the same results:
+# busy threads on two cores (less CPU time over the suite, see docs/performance.md; the same results:
 # the threads run the same programs on the same inputs). Set JAXFLEX_THREADS yourself to override.
 os.environ.setdefault("JAXFLEX_THREADS", "1")
 
 # The xdist workers start after this file is read, so they inherit the environment the ``jaxflex``
-# console script runs in: glibc's malloc on transparent huge pages (about half the kernel time of
-# XLA's buffer allocations; ``jaxflex.experiments.cli.hugepages_env``).
+# console script runs in: glibc's malloc on transparent huge pages (less kernel time in XLA's buffer
+# allocations, see docs/performance.md; ``jaxflex.experiments.cli.hugepages_env``).
 from jaxflex.experiments.cli import hugepages_env  # noqa: E402  (imports no jax)
 
 os.environ.update(hugepages_env() or {})
@@ -44,8 +42,8 @@ jax.config.update("jax_numpy_rank_promotion", "raise")
 from jaxflex.runtime import compiled  # noqa: E402  (after the configuration above)
 
 # The workers do not run the CLI's heap trimming (``jaxflex.runtime.heap``): it costs kernel time (pages
-# returned and faulted in again) and the suite's time is the tighter budget. Measured in fresh clones
-# on 2 cores: the largest worker peaked at 3.5-3.7 GB resident with it, 3.9-4.1 GB without.
+# returned and faulted in again) and the suite's time is the tighter budget; the peak memory it would
+# save is small (see docs/performance.md).
 
 _OWN_CACHE = None
 

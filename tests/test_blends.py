@@ -15,9 +15,9 @@ frames = jax.jit(jax.vmap(blend_frame, in_axes=(None, 0)))   # one compilation p
 
 
 @pytest.mark.parametrize("kind, length_mm, tol_mm", [
-    ("lame", 42.156, 0.01),      # SPEC 3 / paper Table 2
-    ("polar", 41.106, 0.01),     # SPEC 3 / paper Table 2
-    ("clothoid", 41.998, 0.001),  # SPEC 3 (G2 pair of 45-degree clothoids)
+    ("lame", 42.156, 0.01),      # paper Table 2
+    ("polar", 41.106, 0.01),     # paper Table 2
+    ("clothoid", 41.998, 0.001),  # G2 pair of 45-degree clothoids (docs/conventions.md#adept-cycle-and-blends)
 ])
 def test_reference_lengths(kind, length_mm, tol_mm):
     assert abs(float(make_blend(kind, D, D).length) * 1e3 - length_mm) < tol_mm

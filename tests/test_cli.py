@@ -103,8 +103,9 @@ def test_optimize_command_defaults_are_the_study_defaults():
 
 @pytest.mark.xdist_group("commands")
 def test_sweep_command(tmp_path, capsys):
-    """The 12 combinations, 6 kg, tf 0.43 s, default step: SPEC 7 keys, every SPEC 5 metric per run,
-    finite and physically sized, and the table with every metric."""
+    """The 12 combinations, 6 kg, tf 0.43 s, default step: the JSON keys of docs/conventions.md#file-formats,
+    every metric of docs/conventions.md#metrics per run, finite and physically sized, and the table with
+    every metric."""
     path = tmp_path / "w.json"
     out, _ = _run(["sweep", "--payload", "6", "--tf", "0.43", "--json", path], capsys)
     rec = json.loads(path.read_text())

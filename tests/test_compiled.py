@@ -199,7 +199,7 @@ def test_beside_returns_the_result_reraises_and_cancels_when_the_caller_fails():
 def test_xdist_groups_take_effect(request):
     """Tests that share compiled programs carry an ``xdist_group`` mark (one worker, one process):
     with ``--dist loadgroup`` xdist tags their node ids with the group. pytest 9.2 with pytest-xdist
-    3.8 silently drops the tag (xdist issue 1386), and the suite then compiles those programs once
+    3.8 silently drops the tag (a pytest-xdist bug), and the suite then compiles those programs once
     per worker (hence the pin in the test extra)."""
     if not os.environ.get("PYTEST_XDIST_WORKER") or not getattr(request.config.option, "loadgroup", False):
         pytest.skip("not run by xdist with --dist loadgroup")

@@ -1,4 +1,4 @@
-"""Rigid kinematics, trajectories and the paper's kinematic tables (SPEC 3)."""
+"""Rigid kinematics, trajectories and the paper's kinematic tables (docs/conventions.md#adept-cycle-and-blends)."""
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -69,8 +69,8 @@ def test_batched_combinations_equal_single_calls():
         np.testing.assert_allclose(batch.qdd[k], single.qdd, rtol=1e-12, atol=1e-10)
 
 
-# SPEC 3 reference values (tf = 1 s, d = e = 25 mm); tolerance 0.5 % as SPEC 3 states for Lamé and polar
-SPEC3_TASK_ACC = {
+# paper Table 5 reference values (tf = 1 s, d = e = 25 mm); tolerance 0.5 % for Lamé and polar
+TABLE5_TASK_ACC = {
     "lame": (7.78, 5.17, 6.89, 11.81),
     "polar": (7.04, 4.47, 5.96, None),   # trap_1_8 polar: 10.05-10.15 (max at a jump)
     "clothoid": (7.48, 5.06, 6.75, 11.57),
@@ -87,14 +87,14 @@ def table5():
 
 @pytest.mark.parametrize("blend", ["lame", "polar", "clothoid"])
 def test_table5_task_accelerations(table5, blend):
-    for prof, ref in zip(("poly7", "bang_bang", "trap_1_4", "trap_1_8"), SPEC3_TASK_ACC[blend]):
+    for prof, ref in zip(("poly7", "bang_bang", "trap_1_4", "trap_1_8"), TABLE5_TASK_ACC[blend]):
         val = table5[(blend, prof)]
         if ref is None:
-            # SPEC 3 range 10.05-10.15, quoted to 2 decimals (the sampled grid hits the right limit
+            # reference range 10.05-10.15, quoted to 2 decimals (the sampled grid hits the right limit
             # at the acceleration jump, where the supremum 10.1507 sits)
             assert 10.045 <= val < 10.155, val
         else:
-            # SPEC 3 rounds to 2 decimals: 0.5 % (Lamé/polar) and rounding for the clothoid
+            # references rounded to 2 decimals: 0.5 % (Lamé/polar) and rounding for the clothoid
             assert abs(val / ref - 1) < 0.005, (blend, prof, val, ref)
 
 

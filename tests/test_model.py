@@ -381,7 +381,7 @@ def path_points():
 
 
 @pytest.mark.parametrize("payload, k, lo, hi", [
-    (6.0, 0, 57.0, 60.0),          # paper 58 +- 1 Hz; SPEC 4 FE reference 57-60 Hz
+    (6.0, 0, 57.0, 60.0),          # paper 58 +- 1 Hz; FE reference 57-60 Hz
     (0.1, 0, 124.0, 129.0),        # paper 126 +- 2 Hz; FE 125-129 Hz
     (0.1, 2, 1860.0, 1940.0),      # paper 1912 +- 7.5 Hz; FE ~1890-1900 Hz (a few percent)
 ])

@@ -476,7 +476,7 @@ def test_remembered_workspaces_load_the_models_built_before_and_rebuild_the_othe
     in the models' order, whichever were loaded; a damaged file is built again. The builder is
     replaced by a cheap one whose tables encode the payload, so the test checks which model's
     tables land where (that a stacked build gives each model the tables of a build alone, bit for
-    bit, is measured in the issue notes: the 18 models of both payloads against two stacks of 9)."""
+    bit, was measured separately: the 18 models of both payloads against two stacks of 9)."""
     from jaxflex.optimize import workspaces as study
     from jaxflex.workspace import workspace_shapes
 

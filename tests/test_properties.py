@@ -2,7 +2,7 @@
 
 Random VALID designs (blend family and parameters, cycle placement, motion law, tf, payload) must give
 finite results that satisfy the construction's constraints; random INVALID inputs must raise a
-ValueError naming the problem (SPEC 8), never return a silent NaN.
+ValueError naming the problem (docs/conventions.md#bad-input), never return a silent NaN.
 
 Budget: every checked JAX function is jitted once at module level with fixed shapes (65 samples), so
 the examples of a test reuse one compilation per blend family / motion-law kind; hypothesis runs
@@ -335,7 +335,8 @@ def test_igm_roundtrips_at_every_accepted_pose_of_random_robots(a, l1, l2, paylo
             pass
     assume(ok)
     x = np.asarray((ok * N)[:N])                               # fixed shape (N, 2)
-    # the numpy diagnostics (pose_report) and the JAX IGM are independent implementations of SPEC 2
+    # the numpy diagnostics (pose_report) and the JAX IGM are independent implementations of the
+    # inverse geometric model (docs/conventions.md#frames-and-geometry)
     q = np.asarray(_joints(robot, jnp.asarray(x), jnp.zeros((N, 2)), jnp.zeros((N, 2)))["q"])
     np.testing.assert_allclose(q, pose_report(robot, x)["q"], atol=1e-12)
     # every accepted pose, with any velocity and acceleration: DGM(IGM(x)) = x, J q' = x', ... (a

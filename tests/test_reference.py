@@ -58,8 +58,8 @@ def test_exponential_integrator_matches_rk4_at_1us(setup, full, payload, tf):
 @pytest.mark.parametrize("payload, tf", CASES)
 def test_fast_matches_full_nonlinear_model_lame(setup, full, payload, tf):
     """Paper cases, Lamé, all four laws, against the full model. The second-order fast model (the
-    default, with continuous coefficients) agrees within the SPEC 4 0.5 % on every metric (measured
-    <= 0.16 %) except residual_acc, |e''| at tf with the ~18 kHz axial modes, held to the 2 % of
+    default, with continuous coefficients) agrees within the 0.5 % of docs/conventions.md#fast-model on
+    every metric (measured <= 0.16 %) except residual_acc, |e''| at tf with the ~18 kHz axial modes, held to the 2 % of
     single-instant values (measured -0.33 % at 6 kg, +0.97 % at 0.1 kg trap_1_4: the remainder,
     sampled every ~0.8 ms, cannot carry the second-order coupling of the deflection with the kHz
     accelerations). The first-order model's error, O(q_e^2) ~ 0.6 um, would be 3.6 % of trap_1_4's

@@ -5,7 +5,7 @@ physics it must reproduce, each computed independently of the code under test:
 - a slow motion follows the quasi-static deflection of the full model under the inertial loads;
 - the residual vibration decays at the rate the Rayleigh damping gives the first mode;
 - the whole run (error, torques, dwell, metrics) equals the full nonlinear model integrated by RK4;
-- the metrics are what their definitions (SPEC 5) say, on series with known answers.
+- the metrics are what their definitions (docs/conventions.md#metrics) say, on series with known answers.
 
 All rollouts use the product's own default grid and the same compiled program (one law on one
 model, ``LawEvaluator``), so the file pays one compilation of the fast model: its tests run on one
@@ -150,10 +150,11 @@ def _synthetic_series():
 
 
 def test_metrics_on_a_series_with_known_answers():
-    """Each SPEC 5 metric from its definition: peak |tau| over both motors (a negative peak counts),
-    RMS of |e''| over the motion samples, max |e| in mm, |e|, |e'|, |e''| at tf (the dwell's first
-    sample: the state the dwell starts from, e itself, not e - e_static), the low-mode part given by
-    the rollout, the dwell amplitude max |e - e_static| in mm, and the vibration energy at tf."""
+    """Each metric from its definition (docs/conventions.md#metrics): peak |tau| over both motors (a
+    negative peak counts), RMS of |e''| over the motion samples, max |e| in mm, |e|, |e'|, |e''| at tf
+    (the dwell's first sample: the state the dwell starts from, e itself, not e - e_static), the
+    low-mode part given by the rollout, the dwell amplitude max |e - e_static| in mm, and the vibration
+    energy at tf."""
     series, a = _synthetic_series()
     got = {k: float(v) for k, v in jax.jit(metrics)(series).items()}
     assert set(got) == set(METRICS)

@@ -1,4 +1,4 @@
-"""Design sweeps shard their batch over devices (SPEC 6): two forced CPU host devices.
+"""Design sweeps shard their batch over devices: two forced CPU host devices.
 
 Slow (about 2 min: two compilations of the design rollout in a subprocess): run with
 ``pytest -m slow tests/test_sharding.py``."""

@@ -1,4 +1,4 @@
-"""Welch PSD (Parseval, peak location) and the kinematics command's JSON contract (SPEC 7)."""
+"""Welch PSD (Parseval, peak location) and the kinematics command's JSON contract (docs/conventions.md#file-formats)."""
 import json
 
 import jax.numpy as jnp

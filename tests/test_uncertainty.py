@@ -1,5 +1,5 @@
-"""The uncertainty box (SPEC 6): its samples stay inside it and cover it, bad boxes are refused before
-anything compiles, and a model identity builds the robot it names."""
+"""The uncertainty box (docs/conventions.md#uncertainty-box): its samples stay inside it and cover it,
+bad boxes are refused before anything compiles, and a model identity builds the robot it names."""
 import numpy as np
 import pytest
 

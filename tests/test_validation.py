@@ -1,4 +1,4 @@
-"""Bad inputs raise clear ValueErrors before any compilation (SPEC 8)."""
+"""Bad inputs raise clear ValueErrors before any compilation (docs/conventions.md#bad-input)."""
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -194,7 +194,7 @@ def _cases():
 
 @pytest.mark.parametrize("name, arg, value", list(_cases()))
 def test_every_entry_point_rejects_bad_values_naming_them_before_compiling(name, arg, value, compilations):
-    """SPEC 8: zero, negative, NaN or infinite times, steps, rates and payloads, and unknown names,
+    """Zero, negative, NaN or infinite times, steps, rates and payloads, and unknown names,
     are rejected with a ValueError that names the argument, and nothing is compiled first."""
     call = next(fn for n, fn, _ in _entry_points() if n == name)
     compilations[0] = 0

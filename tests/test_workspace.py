@@ -48,8 +48,8 @@ def test_coefficients_are_exact_polynomials_in_the_path_derivatives():
     (qa1, qa2) to round-off (the model is quadratic in velocities and linear in accelerations, so
     the claim is exact). Tolerance 1e-12 of each field's range: pose_coeffs takes every field from one
     term of the residual (``model.residual_term``), so none is a difference against the ~5e9 N/m
-    elastic stiffness (measured 4e-16 for the structure and 1e-15 for the rebuilt polynomial, on
-    2026-11-28; 1e-8 when the s'' and s'^2 fields were such differences)."""
+    elastic stiffness (measured 4e-16 for the structure and 1e-15 for the rebuilt polynomial; 1e-8
+    when the s'' and s'^2 fields were such differences)."""
     robot = robot_preset("default", payload=6.0)
     qa = np.asarray(igm(robot, jnp.asarray([0.05, 0.27])))
 

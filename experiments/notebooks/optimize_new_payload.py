@@ -19,14 +19,14 @@
 # 1. run the 12 paper combinations (3 blends x 4 motion laws) for the new case and take the one
 #    with the smallest dwell residual: the best paper combination;
 # 2. optimize a design by gradient (reverse mode through the whole rollout, optax Adam:
-#    `jaxflex.optimize.loop.minimize`) against the residual-vibration objective of
-#    `jaxflex.optimize.objective` (log scale, relative to the best paper combination: 0 = as good as
+#    `jf.minimize`) against the residual-vibration objective of
+#    `jf.LawObjective` (log scale, relative to the best paper combination: 0 = as good as
 #    it, -4.6 = 10x less residual), with a penalty above the poly7-Lamé peak torque;
 # 3. compare the optimized trajectory with the best paper combination.
 #
-# Full mode runs the library's whole study, `jaxflex.optimize.study.optimize_design`: the design is
+# Full mode runs the library's whole study, `jf.optimize_design`: the design is
 # the Lamé blend (d, e, n) of both corners plus a shaped monotone motion law
-# (`jaxflex.profiles.shaped`: zero velocity and acceleration at both ends for any coefficients),
+# (`jf.shaped`: zero velocity and acceleration at both ends for any coefficients),
 # trained on five models (nominal and the four corners of the perturbation box E +-5 %, payload
 # +-10 %), second-order fast model, 100 Adam steps, then evaluated on nominal, perturbed (the nine
 # models of that box) and damped models beside the ZV/ZVD input-shaped and Ruckig baselines.
@@ -57,19 +57,8 @@ import jax.numpy as jnp
 import matplotlib.pyplot as plt
 import numpy as np
 
-from jaxflex import plotting
-from jaxflex.blends import BLENDS
+import jaxflex as jf
 from jaxflex.experiments.io import fmt, save_figure, table
-from jaxflex.optimize.config import OptimizerConfig
-from jaxflex.optimize.loop import minimize
-from jaxflex.optimize.objective import LawObjective, Scales
-from jaxflex.optimize.config import StudyConfig
-from jaxflex.optimize.study import optimize_design
-from jaxflex.path import make_path
-from jaxflex.problem import Problem, Timing
-from jaxflex.profiles import PROFILES, make_profile, profile_values, shaped
-from jaxflex.robot import cycle_preset, robot_preset
-from jaxflex.sweep import Case, SweepConfig, default_grid, run_sweep, sweep_tables
 
 QUICK = os.environ.get("JAXFLEX_QUICK", "") == "1"
 OUT = Path(os.environ.get("JAXFLEX_NB_OUT", "results/notebooks")) / "optimize_new_payload"
@@ -86,18 +75,18 @@ print(f"quick mode: {QUICK}; output in {OUT}")
 PAYLOAD, TF, DWELL = 3.0, 0.38, 0.1
 N_COEF = 6
 LEARNING_RATE = 0.05
-cycle = cycle_preset("default")
+cycle = jf.cycle_preset("default")
 if QUICK:
-    robot = robot_preset("default", n_bending=1, n_axial=1)
+    robot = jf.robot_preset("default", n_bending=1, n_axial=1)
     STEPS = 10
     blends = ("lame",)
     # the quick grid of every notebook (shared compiled programs when run in one process); built for
     # tf = 0.43 s, the longest paper case, so it has enough exponential squarings for any TF <= 0.43 s
-    grid = default_grid(robot, [max(TF, 0.43)], DWELL, dt=2e-3)._replace(dwell_steps=500, unroll=1)
+    grid = jf.default_grid(robot, [max(TF, 0.43)], DWELL, dt=2e-3)._replace(dwell_steps=500, unroll=1)
 else:
-    robot = robot_preset("default")
+    robot = jf.robot_preset("default")
     STEPS = 100
-    blends = BLENDS
+    blends = jf.BLENDS
     grid = None
 print(f"new case: {PAYLOAD:g} kg in {TF:g} s, dwell {DWELL:g} s")
 
@@ -109,30 +98,30 @@ print(f"new case: {PAYLOAD:g} kg in {TF:g} s, dwell {DWELL:g} s")
 # sweep gives the best paper combination and the references of the objective (the best law's
 # vibration energy at tf and dwell amplitude, and the poly7-Lamé peak torque as the torque bound).
 # The law objective needs the linearization tables of that path for the new payload:
-# `jaxflex.sweep.sweep_tables` builds them with the sweep's own compiled programs.
+# `jf.sweep_tables` builds them with the sweep's own compiled programs.
 
 # %%
 if QUICK:
-    config = SweepConfig(dwell=DWELL, blends=blends, profiles=PROFILES, grid=grid, with_series=True,
+    config = jf.SweepConfig(dwell=DWELL, blends=blends, profiles=jf.PROFILES, grid=grid, with_series=True,
                          second_order=False, timed=False)
-    res = run_sweep(robot, cycle, [Case(PAYLOAD, TF)], config)
+    res = jf.run_sweep(robot, cycle, [jf.Case(PAYLOAD, TF)], config)
     paper = {k: np.asarray(v) for k, v in res.metrics.items()}               # (blend, law, case)
     paper_blends, paper_profiles = res.blends, res.profiles
     dw = paper["dwell_residual_mm"][:, :, 0]
     bi, bj = np.unravel_index(np.argmin(dw), dw.shape)
     blend, best_law = paper_blends[bi], paper_profiles[bj]
-    path = make_path(cycle, blend, 0.025)
-    tables = sweep_tables(robot, cycle, [PAYLOAD], blend, config)
+    path = jf.make_path(cycle, blend, 0.025)
+    tables = jf.sweep_tables(robot, cycle, [PAYLOAD], blend, config)
     ref = {k: v[bi, bj, 0] for k, v in paper.items()}
     torque_bound = paper["max_torque_nm"][paper_blends.index("lame"), paper_profiles.index("poly7"), 0]
-    scales = Scales(energy=jnp.asarray([ref["residual_energy"]]),
+    scales = jf.Scales(energy=jnp.asarray([ref["residual_energy"]]),
                     dwell_ms=jnp.asarray([(1e-3 * ref["dwell_residual_mm"]) ** 2 / 2]),
                     torque_bound=jnp.asarray([torque_bound]))
     # the study's penalty weight; first-order model (no robots)
-    objective = LawObjective(tables, jnp.asarray(path.length), jnp.asarray(TF), jnp.asarray(DWELL), scales,
-                             grid=res.grid)
-    result = minimize(objective, jnp.ones(N_COEF),
-                      config=OptimizerConfig(steps=STEPS, learning_rate=LEARNING_RATE, patience=40, label="law"))
+    objective = jf.LawObjective(tables, jnp.asarray(path.length), jnp.asarray(TF), jnp.asarray(DWELL), scales,
+                                grid=res.grid)
+    result = jf.minimize(objective, jnp.ones(N_COEF),
+                         config=jf.OptimizerConfig(steps=STEPS, learning_rate=LEARNING_RATE, patience=40, label="law"))
     coef = np.asarray(result.params)
     best_key = f"{blend}/{best_law} (best paper)"
     laws = {best_key: {k: float(v) for k, v in ref.items()},
@@ -140,11 +129,11 @@ if QUICK:
     robust = None
 else:
     checkpoint = OUT / f"checkpoint_{PAYLOAD:g}kg_{TF:g}s_{N_COEF}coef.npz"
-    study = optimize_design(Problem(robot, cycle, (PAYLOAD,), Timing(TF, DWELL)),
-                            dataclasses.replace(StudyConfig(), n_coef=N_COEF).with_optimizer(
-                                steps=STEPS, learning_rate=LEARNING_RATE, checkpoint=checkpoint))
+    study = jf.optimize_design(jf.Problem(robot, cycle, (PAYLOAD,), jf.Timing(TF, DWELL)),
+                               dataclasses.replace(jf.StudyConfig(), n_coef=N_COEF).with_optimizer(
+                                   steps=STEPS, learning_rate=LEARNING_RATE, checkpoint=checkpoint))
     paper = study.paper
-    paper_blends, paper_profiles = BLENDS, PROFILES                        # the study sweeps them all
+    paper_blends, paper_profiles = jf.BLENDS, jf.PROFILES                        # the study sweeps them all
     blend, best_law, coef, result = study.blend, study.best_paper, study.coef, study.result
     path = study.paths["optimized"]
     x = study.design
@@ -197,7 +186,7 @@ width = 0.8 / len(paper_blends)
 x = np.arange(len(paper_profiles))
 for i, b in enumerate(paper_blends):
     ax.bar(x + (i - (len(paper_blends) - 1) / 2) * width, paper["dwell_residual_mm"][i, :, 0], width,
-           color=plotting.BLEND_COLOR.get(b), label=b)
+           color=jf.plotting.BLEND_COLOR.get(b), label=b)
 ax.axhline(laws["optimized"]["dwell_residual_mm"], color="k", ls="--", lw=1, label="optimized")
 ax.set_xticks(x, paper_profiles)
 ax.set(yscale="log", ylabel="dwell residual [mm]",
@@ -208,11 +197,11 @@ fig.tight_layout()
 save_figure(fig, OUT / "paper_sweep.png", show=True)
 
 eta = jnp.linspace(0.0, 1.0, 401)
-curves = {f"{best_law} (best paper)": make_profile(best_law), "poly7": make_profile("poly7"),
-          "optimized": shaped(jnp.asarray(coef), name="optimized")}
+curves = {f"{best_law} (best paper)": jf.make_profile(best_law), "poly7": jf.make_profile("poly7"),
+          "optimized": jf.shaped(jnp.asarray(coef), name="optimized")}
 fig, ax = plt.subplots(1, 2, figsize=(11, 3.8))
 for label, prof in curves.items():
-    v = profile_values(prof, eta)       # one small compiled program per law, not op by op
+    v = jf.profile_values(prof, eta)       # one small compiled program per law, not op by op
     ax[0].plot(eta, v.ds, label=label)
     ax[1].plot(eta, v.dds, label=label)
 ax[0].set(xlabel="t / tf", ylabel="S'", title="motion law: velocity")

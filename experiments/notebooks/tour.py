@@ -41,13 +41,8 @@ import jax.numpy as jnp
 import matplotlib.pyplot as plt
 import numpy as np
 
-from jaxflex import plotting
+import jaxflex as jf
 from jaxflex.experiments.io import fmt, save_figure, table
-from jaxflex.metrics import METRICS, UNITS
-from jaxflex.path import make_path
-from jaxflex.profiles import PROFILES, make_profile, profile_eval
-from jaxflex.robot import cycle_preset, robot_preset
-from jaxflex.sweep import Case, SweepConfig, default_grid, run_sweep
 
 QUICK = os.environ.get("JAXFLEX_QUICK", "") == "1"
 OUT = Path(os.environ.get("JAXFLEX_NB_OUT", "results/notebooks")) / "tour"
@@ -67,10 +62,10 @@ PAYLOAD, TF, DWELL = 6.0, 0.43, 0.1        # kg, s (paper case 1), s
 BLEND, LAW = "lame", "poly7"
 
 modes = dict(n_bending=1, n_axial=1) if QUICK else {}
-robot = robot_preset("default", payload=PAYLOAD, **modes)
-cycle = cycle_preset("default")
-path = make_path(cycle, BLEND, d=0.025, e=0.025, n=3.0)
-profile = make_profile(LAW)
+robot = jf.robot_preset("default", payload=PAYLOAD, **modes)
+cycle = jf.cycle_preset("default")
+path = jf.make_path(cycle, BLEND, d=0.025, e=0.025, n=3.0)
+profile = jf.make_profile(LAW)
 
 print(f"pick {np.asarray(cycle.pick)} m -> place {np.asarray(cycle.place)} m, lift {float(cycle.h):g} m")
 print(f"{BLEND} blends d = e = 25 mm: path length {float(path.length) * 1e3:.2f} mm")
@@ -78,20 +73,20 @@ print(f"assumed modes per link: {robot.n_bending} bending (proximal), {robot.n_a
 
 # %% [markdown]
 # The motion law S(eta), eta = t / tf, gives the fraction of the path covered. The four paper laws
-# (`jaxflex.plotting.motion_laws` is the paper's Fig. 7):
+# (`jf.plotting.motion_laws` is the paper's Fig. 7):
 
 # %%
 eta = jnp.linspace(0.0, 1.0, 401)
-fig = plotting.motion_laws(np.asarray(eta), {p: profile_eval(make_profile(p), eta) for p in PROFILES})
+fig = jf.plotting.motion_laws(np.asarray(eta), {p: jf.profile_eval(jf.make_profile(p), eta) for p in jf.PROFILES})
 save_figure(fig, OUT / "motion_laws.png", show=True)
-v = profile_eval(profile, eta)
+v = jf.profile_eval(profile, eta)
 print(f"{LAW}: peak S' = {float(jnp.max(v.ds)):.4f}, peak |S''| = {float(jnp.max(jnp.abs(v.dds))):.4f} "
       f"(x L / tf, x L / tf^2 for the path speed and acceleration)")
 
 # %% [markdown]
 # ## Simulating with the fast model
 #
-# `jaxflex.sweep.run_sweep` is the entry point of the fast model: it tabulates the linearization
+# `jf.run_sweep` is the entry point of the fast model: it tabulates the linearization
 # coefficients along each path, then simulates every blend x law x case in ONE compiled, vmapped
 # program (motion over [0, tf], then the dwell with the motors holding the place pose).
 # `with_series=True` returns the time series besides the metrics. One trajectory is the sweep
@@ -107,12 +102,12 @@ if QUICK:
     # ~2 ms steps over the motion, 0.2 ms over the dwell, no loop unrolling (a smaller program, the
     # same result). The same grid in every notebook's quick mode: run in one process, they share the
     # compiled programs.
-    grid = default_grid(robot, [0.43], DWELL, dt=2e-3)._replace(dwell_steps=500, unroll=1)
+    grid = jf.default_grid(robot, [0.43], DWELL, dt=2e-3)._replace(dwell_steps=500, unroll=1)
     second_order = False
 else:
     grid = None                               # default: ~0.1 ms steps
     second_order = True
-res = run_sweep(robot, cycle, [Case(PAYLOAD, TF)], SweepConfig(dwell=DWELL, blends=(BLEND,), profiles=PROFILES,
+res = jf.run_sweep(robot, cycle, [jf.Case(PAYLOAD, TF)], jf.SweepConfig(dwell=DWELL, blends=(BLEND,), profiles=jf.PROFILES,
                                                          grid=grid, with_series=True, second_order=second_order))
 print(f"grid {res.grid}; tables {res.tables_s:.1f} s, compile {res.compile_s:.1f} s, "
       f"run {res.run_s * 1e3:.0f} ms for {len(res.blends) * len(res.profiles)} trajectories")
@@ -120,8 +115,8 @@ print(f"grid {res.grid}; tables {res.tables_s:.1f} s, compile {res.compile_s:.1f
 j = res.profiles.index(LAW)
 all_series = jax.tree_util.tree_map(np.asarray, res.series)    # leaves (blend, law, case, ...) as numpy
 series = jax.tree_util.tree_map(lambda a: a[0, j, 0], all_series)
-run_metrics = {k: float(res.metrics[k][0, j, 0]) for k in METRICS}
-print(table(["metric", "value", "unit"], [[k, fmt(v, 4), UNITS[k]] for k, v in run_metrics.items()]))
+run_metrics = {k: float(res.metrics[k][0, j, 0]) for k in jf.METRICS}
+print(table(["metric", "value", "unit"], [[k, fmt(v, 4), jf.UNITS[k]] for k, v in run_metrics.items()]))
 
 # %% [markdown]
 # ## End-effector error
@@ -148,7 +143,7 @@ save_figure(fig, OUT / "error.png", show=True)
 
 # All four laws on the same path (the paper's Fig. 12 layout, library plot):
 s_ = all_series
-fig = plotting.tracking_errors(
+fig = jf.plotting.tracking_errors(
     s_.t[0, 0, 0], s_.t_dwell[0, 0, 0],
     {f"{BLEND}/{p}": 1e3 * np.linalg.norm(s_.e[0, k, 0], axis=-1) for k, p in enumerate(res.profiles)},
     {f"{BLEND}/{p}": 1e3 * np.linalg.norm(s_.e_dwell[0, k, 0] - s_.e_static[0, k, 0][None], axis=-1)

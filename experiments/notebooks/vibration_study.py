@@ -17,7 +17,7 @@
 # corner blend (Lamé, clothoid pair, polar polynomial; d = e = 25 mm) and a motion law (poly7,
 # bang-bang, trapezoids with 1/4 and 1/8 acceleration time), in two cases: 6 kg in 0.43 s and
 # 0.1 kg in 0.3 s, each followed by a 0.1 s dwell at the place point. This notebook runs that
-# sweep with `jaxflex.sweep.run_sweep` (one compiled program for every run), prints the metrics
+# sweep with `jf.run_sweep` (one compiled program for every run), prints the metrics
 # table with the paper's published torques beside ours, ranks the combinations by their dwell
 # residual and draws bar plots and the dwell time histories.
 #
@@ -44,14 +44,9 @@ from pathlib import Path
 import matplotlib.pyplot as plt
 import numpy as np
 
-from jaxflex import plotting
-from jaxflex.blends import BLENDS
+import jaxflex as jf
 from jaxflex.experiments import paper_data
 from jaxflex.experiments.io import fmt, save_figure, table
-from jaxflex.metrics import UNITS
-from jaxflex.profiles import PROFILES
-from jaxflex.robot import cycle_preset, robot_preset
-from jaxflex.sweep import PAPER_CASES, SweepConfig, default_grid, run_sweep
 
 QUICK = os.environ.get("JAXFLEX_QUICK", "") == "1"
 OUT = Path(os.environ.get("JAXFLEX_NB_OUT", "results/notebooks")) / "vibration_study"
@@ -68,20 +63,20 @@ print(f"quick mode: {QUICK}; output in {OUT}")
 # %%
 DWELL = 0.1
 if QUICK:
-    robot = robot_preset("default", n_bending=1, n_axial=1)
-    cases = PAPER_CASES[:1]
+    robot = jf.robot_preset("default", n_bending=1, n_axial=1)
+    cases = jf.PAPER_CASES[:1]
     blends = ("lame",)
     # ~2 ms steps over the motion, 0.2 ms over the dwell, no loop unrolling: the same grid as the
     # other notebooks' quick mode, so the compiled programs are shared when they run in one process
-    grid = default_grid(robot, [0.43], DWELL, dt=2e-3)._replace(dwell_steps=500, unroll=1)
+    grid = jf.default_grid(robot, [0.43], DWELL, dt=2e-3)._replace(dwell_steps=500, unroll=1)
     second_order = False
 else:
-    robot = robot_preset("default")
-    cases = PAPER_CASES
-    blends = BLENDS
+    robot = jf.robot_preset("default")
+    cases = jf.PAPER_CASES
+    blends = jf.BLENDS
     grid = None
     second_order = True
-cycle = cycle_preset("default")
+cycle = jf.cycle_preset("default")
 print("cases:", ", ".join(f"{c.payload:g} kg in {c.tf:g} s" for c in cases))
 
 # %% [markdown]
@@ -92,7 +87,7 @@ print("cases:", ", ".join(f"{c.payload:g} kg in {c.tf:g} s" for c in cases))
 # (blend, law, case).
 
 # %%
-res = run_sweep(robot, cycle, cases, SweepConfig(dwell=DWELL, blends=blends, profiles=PROFILES, grid=grid,
+res = jf.run_sweep(robot, cycle, cases, jf.SweepConfig(dwell=DWELL, blends=blends, profiles=jf.PROFILES, grid=grid,
                                             with_series=True, second_order=second_order))
 print(f"{len(res.blends) * len(res.profiles) * len(res.cases)} runs; grid {res.grid}")
 print(f"tables {res.tables_s:.1f} s, rollout compile {res.compile_s:.1f} s, run {res.run_s * 1e3:.0f} ms")
@@ -125,7 +120,7 @@ for k, case in enumerate(res.cases):
             records.append(rec)
             rows.append(rec)
     rows.sort(key=lambda r: r["dwell_residual_mm"])
-    head = (["rank", "blend", "law"] + [f"{m} [{UNITS[m]}]" for m in COLUMNS]
+    head = (["rank", "blend", "law"] + [f"{m} [{jf.UNITS[m]}]" for m in COLUMNS]
             + ["paper torque", "paper max defl."])
     body = [[n + 1, r["blend"], r["profile"]] + [fmt(r[m], 4) for m in COLUMNS]
             + [fmt(paper_value(case, m, r["blend"], r["profile"]), 4)
@@ -164,9 +159,9 @@ for k, case in enumerate(res.cases):
         ax = axes[k, col]
         for i, b in enumerate(res.blends):
             ax.bar(x + (i - (len(res.blends) - 1) / 2) * width, res.metrics[metric][i, :, k], width,
-                   color=plotting.BLEND_COLOR.get(b), label=b)
+                   color=jf.plotting.BLEND_COLOR.get(b), label=b)
         ax.set_xticks(x, res.profiles)
-        ax.set_ylabel(f"{metric} [{UNITS[metric]}]")
+        ax.set_ylabel(f"{metric} [{jf.UNITS[metric]}]")
         ax.set_title(f"{case.payload:g} kg, tf = {case.tf:g} s")
         if metric == "dwell_residual_mm":
             ax.set_yscale("log")
@@ -183,7 +178,7 @@ save_figure(fig, OUT / "bars.png", show=True)
 # %%
 s = jax.tree_util.tree_map(np.asarray, res.series)           # leaves (blend, law, case, time, ...)
 keys = [(i, j, f"{b}/{p}") for i, b in enumerate(res.blends) for j, p in enumerate(res.profiles)]
-fig = plotting.tracking_errors(
+fig = jf.plotting.tracking_errors(
     s.t[0, 0, 0], s.t_dwell[0, 0, 0],
     {key: 1e3 * np.linalg.norm(s.e[i, j, 0], axis=-1) for i, j, key in keys},
     {key: 1e3 * np.linalg.norm(s.e_dwell[i, j, 0] - s.e_static[i, j, 0][None], axis=-1)

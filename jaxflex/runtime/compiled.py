@@ -9,9 +9,8 @@ independent stages, or ``release_if_crowded`` (which releases only above half th
 next stage runs many of the same programs: the mappings of the programs are returned, and a
 program needed again is reloaded from the persistent compilation cache (or recompiled). Releasing
 does not return everything (a few mappings per program stay). Compiled programs also hold most of
-a long job's memory (an optimization study's about 1.3 GB for 20.7 thousand mappings, measured on
-2 cores), so the heaviest stages of a long job run in a fresh process of their own
-(``run_isolated``), for their peak memory.
+a long job's memory (docs/performance.md), so the heaviest stages of a long job run in a fresh
+process of their own (``run_isolated``), for their peak memory.
 
 ``compile_ahead`` starts compiling a jitted function for arguments of given shapes in a background
 thread while the caller goes on (XLA releases the interpreter lock while it compiles), and
@@ -76,7 +75,7 @@ def release_if_crowded(share: float = MAPPING_SHARE) -> bool:
     """``release_compiled`` if this process holds more than ``share`` of its mapping limit; returns
     whether it released. Long jobs call it between stages: programs that a later stage runs again
     (the engine's rollouts, the coefficient and full-model programs) stay compiled while there is room,
-    instead of being reloaded from the persistent cache (seconds each) or recompiled."""
+    instead of being reloaded from the persistent cache (slow for large programs) or recompiled."""
     count, limit = mapping_count(), mapping_limit()
     if count is None or limit is None or count <= share * limit:
         return False
@@ -127,8 +126,8 @@ _DTYPE_STR: dict = {}
 
 def _aval(x) -> tuple:
     """(shape, dtype string, weak type) of an array, a ShapeDtypeStruct or a scalar. A jax array's
-    cached abstract value and a memo of dtype strings take a tenth of the time of ``jax.typeof``
-    and ``np.dtype(...).str``: ``call`` takes the signature of thousands of leaves per call of a
+    cached abstract value and a memo of dtype strings are much cheaper than ``jax.typeof`` and
+    ``np.dtype(...).str``, and ``call`` takes the signature of thousands of leaves per call of a
     staged gradient's programs."""
     a = getattr(x, "aval", None)
     if a is None:

@@ -3,19 +3,16 @@
 XLA:CPU allocates every buffer of a program run with the C library's ``malloc`` and frees it at
 the end. In a long run (an optimization study: thousands of program runs from several threads,
 plus compilations) glibc keeps most of the freed memory in its per-thread arenas instead of
-returning it, so the resident size grows far beyond what is live: at the end of a cold ``jaxflex
-optimize --payload 6 --tf 0.43``, 2.9 GB resident for 0.19 GB of live arrays, 1.0 GB after one
-``malloc_trim(0)``. ``start_trimming`` runs a daemon thread that trims the heap whenever the
-resident size has grown by ``slack`` bytes since its last trim (checked every ``period`` seconds).
-It changes where memory sits, never a result. The command-line entry points start it (the test
-suite's workers do not); a library user may call it too. Linux with glibc only (elsewhere it does
-nothing).
+returning it, so the resident size grows far beyond what is live, and one ``malloc_trim(0)`` gives
+most of the difference back (docs/performance.md). ``start_trimming`` runs a daemon thread that
+trims the heap whenever the resident size has grown by ``slack`` bytes since its last trim (checked
+every ``period`` seconds). It changes where memory sits, never a result. The command-line entry
+points start it (the test suite's workers do not); a library user may call it too. Linux with glibc
+only (elsewhere it does nothing).
 
-The cost is kernel time: returned pages are faulted in again when the next buffers need them. Measured
-cold on 2 cores (2026-11-27): ``jaxflex optimize --payload 6 --tf 0.43`` with a 128 MiB slack trims 138
-times, peak RSS 2.5-2.8 GB (3.8-4.1 GB untrimmed), 83 s of system time; with 512 MiB, 25 trims, 2.96
-GB, 61 s; ``jaxflex reproduce``: 367 s of system time against 232 s untrimmed, peak RSS 3.0 GB against
-3.8 GB, 21:53 against 21:08 of wall time.
+The cost is kernel time: returned pages are faulted in again when the next buffers need them. A
+smaller ``slack`` trims more often, for a lower peak resident size and more system time; trimming
+lowers a long run's peak resident size at a small cost in wall time (docs/performance.md).
 """
 from __future__ import annotations
 
@@ -26,11 +23,9 @@ import sys
 import threading
 import time
 
-# No trimming below this resident size [bytes]: an optimizer's steps free and reallocate a few hundred
-# MB of XLA buffers each, and trimming them at every step costs the page faults of refilling them
-# (the design gradient over the 9 box models, 10 steps on 2 cores, 2026-11-27: 1.25-1.28 s per step,
-# 0.1-0.2 million page faults and 1.97 GB resident with this floor; 1.34-1.39 s, 0.5-0.6 million and
-# 1.61-1.67 GB trimming from any size).
+# No trimming below this resident size [bytes]: an optimizer's steps free and reallocate large XLA
+# buffers at every step, and trimming them each time costs the page faults of refilling them, which
+# makes the steps slower (docs/performance.md).
 TRIM_ABOVE = 2 * 2**30
 
 _LOCK = threading.Lock()

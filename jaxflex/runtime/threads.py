@@ -2,10 +2,10 @@
 
 An XLA:CPU program of the engine (a table chunk, a rollout) runs mostly on one core, and JAX's
 asynchronous dispatch runs queued calls one after another; from a few Python threads (JAX releases
-the interpreter lock while a program runs) they run side by side. On a 2-core machine the tables
-and rollouts of a large model set (the 200 random models of an uncertainty box) take about 0.7x
-the time. Every call is the same program on its own inputs, so the results are identical to the
-sequential ones, in the same order.
+the interpreter lock while a program runs) they run side by side, so the tables and rollouts of a
+large model set (the 200 random models of an uncertainty box) take less wall time than one after
+another (docs/performance.md). Every call is the same program on its own inputs, so the results are
+identical to the sequential ones, in the same order.
 
 ``Beside`` runs one function in a background thread while the caller goes on, with cancellation
 when the caller fails.
@@ -56,8 +56,9 @@ def host_map(fn: Callable, items: Sequence) -> list:
 class Beside:
     """``fn(cancelled, *args)`` (``cancelled``: a ``threading.Event``) in a background thread from
     ``with`` entry, for work that goes on beside the caller's (the optimization study evaluates the
-    baselines beside its optimizer); ``result()`` waits for it (re-raising its exception). Leaving the block by an exception cancels it (``fn`` checks the
-    event between its steps) and waits for it to stop."""
+    baselines beside its optimizer); ``result()`` waits for it (re-raising its exception). Leaving the
+    block by an exception cancels it (``fn`` checks the event between its steps) and waits for it to
+    stop."""
 
     def __init__(self, fn, *args):
         self._fn, self._args = fn, args

@@ -1,4 +1,4 @@
-"""Behaviour snapshot for refactors (issue 20: every metric equal to 1e-9 relative): the paper sweep's
+"""Behaviour snapshot for refactors (a refactor keeps every metric equal to 1e-9 relative): the paper sweep's
 metrics (24 runs), a 3-step design optimization on the spanning set (its history) and every
 evaluation of the study (nominal, perturbed, damped sets x 4 candidates), as JSON.
 
