@@ -100,7 +100,8 @@ def gradient_bench(repeats: int = 5, payload: float = 6.0, tf: float = 0.43, dwe
     out["design"]["stages_s"] = staged.stage_times(f, params, repeats=repeats)
     if not quick:
         path = make_path(cycle, "lame", 0.025)
-        f_law = law_objective(LawEvaluator(models, path, tf, dwell, grid), scales, c.train.with_optimizer(label="bench"))
+        f_law = law_objective(LawEvaluator(models, path, tf, dwell, grid), scales,
+                              c.train.with_optimizer(label="bench"))
         out["law"] = _time_value_and_grad(f_law, coef, OneProgram(build="fast"), repeats, True)
         box = training_models(robot, [payload], "box")
         k = len(box.ids)

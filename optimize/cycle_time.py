@@ -93,13 +93,14 @@ def cycle_time_study(problem: Problem, tfs: Sequence[float] = (0.43, 0.40, 0.37,
     grid = default_grid(robot, [float(tfs.max())], dwell)     # step <= 0.1 ms at every tf
     models = training_models(robot, [payload], train, box=config.box, points=config.box_points, cycle=cycle)
     params = encode(cycle, start_design(cycle, n_coef, config.train.blend))
+    gradient = resolved(Staged(), steps)        # one gradient for every tf: compiled ahead, then trained with
     if steps > 0:
         # the design gradient (one program for every tf) compiles in the background during the sweep
         shapes = design_objective(Training(models, cycle, Timing(float(tfs[0]), dwell, grid),
                                            abstract_scales(len(models.ids), training_weights(train)),
                                            workspace_shapes(models.robots, cycle, models=len(models.ids))),
                                   config.train)
-        resolved(Staged(), steps).compile_ahead(shapes, params)
+        gradient.compile_ahead(shapes, params)
     res = run_sweep(robot, cycle, [Case(payload, float(t)) for t in tfs],
                     SweepConfig(dwell=dwell, grid=grid, timed=False))
     dw = res.metrics["dwell_residual_mm"]                                   # (B, P, T)
@@ -129,7 +130,7 @@ def cycle_time_study(problem: Problem, tfs: Sequence[float] = (0.43, 0.40, 0.37,
         # one optimization per tf: no checkpoint (the configuration's checkpoint is one file)
         train_config = config.train.with_optimizer(label=f"design tf={tf:g}", checkpoint=None)
         result = train_design(Training(models, cycle, Timing(float(tf), dwell, grid), scales, workspaces), params,
-                              train_config)
+                              train_config, gradient)
         params = result.params
         x = jax.tree_util.tree_map(np.asarray, decode(cycle, params))
         path = design_path(cycle, x, config.train.blend)

@@ -61,8 +61,8 @@ def _value_and_grad(objective, params, args, fn, mode):
     return value_and_grad_fwd(g)(params) if mode == "forward" else jax.value_and_grad(g, has_aux=True)(params)
 
 
-_PROGRAMS = {"quick": jax.jit(_value_and_grad, static_argnames=("fn", "mode")),
-             "fast": jax.jit(_value_and_grad, static_argnames=("fn", "mode"), compiler_options=options.HOT_LOOP)}
+_PROGRAMS = {b: jax.jit(_value_and_grad, static_argnames=("fn", "mode"), compiler_options=options.build(b))
+             for b in options.BUILDS}
 
 
 def cache_size() -> int:

@@ -163,6 +163,7 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
     weights = training_weights(train, len(payloads))
     workspaces = None
     train_config = c.train.with_optimizer(label=f"{'design' if free_path else 'law'} tf={tf:g}")
+    gradient = resolved(Staged(), steps)        # the design gradient: compiled ahead, then trained with
     if free_path:
         # the design gradient compiles in the background from the start, during the workspace tables
         # and the paper sweep: its workspace and scales are only shapes until then
@@ -170,7 +171,7 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
         if steps > 0:
             shapes = Training(models, cycle, problem.timing, abstract_scales(len(models.ids), weights),
                               workspace_shapes(models.robots, cycle, models=len(models.ids)))
-            resolved(Staged(), steps).compile_ahead(design_objective(shapes, train_config), encode(cycle, x0))
+            gradient.compile_ahead(design_objective(shapes, train_config), encode(cycle, x0))
         workspaces = training_workspaces(models, cycle, progress, c.train.optimizer.memo)
     nominal = nominal_indices(models, payloads)
     sweep = paper_sweep(subset(models, nominal), cycle, tf, SweepConfig(dwell=dwell, grid=grid, progress=progress))
@@ -200,7 +201,7 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
     with beside:
         if free_path:
             result = train_design(Training(models, cycle, problem.timing, scales, workspaces),
-                                  encode(cycle, x0), train_config)
+                                  encode(cycle, x0), train_config, gradient)
             x = jax.tree_util.tree_map(np.asarray, decode(cycle, result.params))
             paths["optimized"] = design_path(cycle, x, blend_family)
             coef = np.asarray(x.coef)

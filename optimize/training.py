@@ -164,14 +164,16 @@ class Training(NamedTuple):
     workspaces: Workspace | None = None
 
 
-def train_design(training: Training, init: Params, config: TrainConfig = TrainConfig()) -> OptResult:
+def train_design(training: Training, init: Params, config: TrainConfig = TrainConfig(),
+                 gradient=Staged()) -> OptResult:
     """Optimize the design parameters (start ``init``) on ``training`` (its models at its motion
     time with its normalization; ``Training``) as ``config`` says (``TrainConfig``), the gradient
-    through the rollout's stages (``staged.Staged``). The path tables inside the objective come from
+    as the strategy ``gradient`` computes it (default: the rollout's stages, ``staged.Staged``, its
+    build chosen by the number of steps). The path tables inside the objective come from
     the models' workspace tables (``jaxflex.workspace``, built here unless ``training.workspaces``
     holds them): the gradient compiles much sooner than through the model's table build."""
     _check_training(training.timing.tf, training.timing.dwell, config)
-    return minimize(design_objective(training, config), init, (), _optimizer(config), gradient=Staged())
+    return minimize(design_objective(training, config), init, (), _optimizer(config), gradient=gradient)
 
 
 def design_objective(training: Training, config: TrainConfig = TrainConfig()) -> DesignObjective:
@@ -209,13 +211,14 @@ def canonical(scales: Scales) -> Scales:
     return Scales(*(v if v is None or isinstance(v, jax.ShapeDtypeStruct) else host_scalar(v) for v in scales))
 
 
-def train_law(evaluator: LawEvaluator, scales: Scales, init, config: TrainConfig = LAW_TRAINING) -> OptResult:
+def train_law(evaluator: LawEvaluator, scales: Scales, init, config: TrainConfig = LAW_TRAINING,
+              gradient=OneProgram()) -> OptResult:
     """Optimize the shaped-law coefficients (start ``init`` (m + 1,)) on the training models of
     ``evaluator`` (along its path, at its motion time tf [s], dwell and grid, with its tables) with
     the normalization ``scales``, as ``config`` says (``TrainConfig``; its blend is not used)."""
     _check_training(evaluator.tf, evaluator.dwell, config)
     return minimize(law_objective(evaluator, scales, config), jnp.asarray(init, dtype=float), (), _optimizer(config),
-                    gradient=OneProgram())
+                    gradient=gradient)
 
 
 def law_objective(evaluator: LawEvaluator, scales: Scales, config: TrainConfig = LAW_TRAINING) -> LawObjective:

@@ -20,6 +20,7 @@ def test_every_public_name_resolves():
 
 
 def test_importing_the_package_imports_no_jax():
-    code = "import sys, jaxflex; assert 'jax' not in sys.modules; jaxflex.StudyConfig(); assert 'jax' not in sys.modules"
+    code = ("import sys, jaxflex; assert 'jax' not in sys.modules; jaxflex.StudyConfig(); "
+            "assert 'jax' not in sys.modules")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr

@@ -107,8 +107,9 @@ if QUICK:
 else:
     grid = None                               # default: ~0.1 ms steps
     second_order = True
-res = jf.run_sweep(robot, cycle, [jf.Case(PAYLOAD, TF)], jf.SweepConfig(dwell=DWELL, blends=(BLEND,), profiles=jf.PROFILES,
-                                                         grid=grid, with_series=True, second_order=second_order))
+config = jf.SweepConfig(dwell=DWELL, blends=(BLEND,), profiles=jf.PROFILES, grid=grid, with_series=True,
+                        second_order=second_order)
+res = jf.run_sweep(robot, cycle, [jf.Case(PAYLOAD, TF)], config)
 print(f"grid {res.grid}; tables {res.tables_s:.1f} s, compile {res.compile_s:.1f} s, "
       f"run {res.run_s * 1e3:.0f} ms for {len(res.blends) * len(res.profiles)} trajectories")
 
