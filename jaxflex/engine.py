@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-from typing import Sequence
+from typing import NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -77,8 +77,19 @@ def run(tables: Tables, samples: MotionSamples, tf, dwell, robot: Robot, grid: G
     return state.series
 
 
-def run_many(jobs: Sequence[tuple], grid: Grid, second_order: bool = True) -> Series:
-    """Rollouts of the jobs (tables, samples, tf, dwell, robot), stacked along a leading axis (run
+class Job(NamedTuple):
+    """One rollout for ``run_many``: the path ``tables`` of the model ``robot``, the motion
+    ``samples``, the motion time ``tf`` [s] and the ``dwell`` [s]."""
+
+    tables: Tables
+    samples: MotionSamples
+    tf: float
+    dwell: float
+    robot: Robot
+
+
+def run_many(jobs: Sequence[Job], grid: Grid, second_order: bool = True) -> Series:
+    """Rollouts of the jobs (``Job``), stacked along a leading axis (run
     side by side on the host's cores, ``jaxflex.runtime.threads``)."""
     return trees.stack(host_map(lambda job: run(*job, grid=grid, second_order=second_order), jobs))
 
@@ -161,8 +172,8 @@ class LawEvaluator:
         if self._tables is None:
             return trees.stack(host_map(lambda robot: run(self._build(robot), samples, tf, self.dwell, robot,
                                                           self.grid), self._robots))
-        return run_many([(tables, samples, tf, self.dwell, robot) for tables, robot in zip(self._tables, self._robots)],
-                        self.grid)
+        jobs = [Job(tables, samples, tf, self.dwell, robot) for tables, robot in zip(self._tables, self._robots)]
+        return run_many(jobs, self.grid)
 
     def __call__(self, law, tf: float | None = None) -> dict:
         """law: a Profile or MotionSamples -> metrics dict name -> (K,) numpy arrays. ``tf`` [s]
@@ -183,7 +194,7 @@ class LawEvaluator:
                 robots = self._robots[i:i + STREAM_MODELS]
                 tables = host_map(self._build, robots)
                 for part, smp in zip(parts, samples):
-                    part.append(metrics_of(run_many([(t, smp, tf, self.dwell, r) for t, r in zip(tables, robots)],
+                    part.append(metrics_of(run_many([Job(t, smp, tf, self.dwell, r) for t, r in zip(tables, robots)],
                                                     self.grid)))
                 del tables
             out = [{k: np.concatenate([p[k] for p in part]) for k in part[0]} for part in parts]

@@ -93,7 +93,7 @@ def _sweep_series(values, breaks, lengths, tfs, dwell, robots, profiles, grid, s
     for i in range(breaks.shape[0]):
         tables = [Tables(values=jax.tree_util.tree_map(lambda v: jnp.asarray(v[c, i]), values),
                          breaks=jnp.asarray(breaks[i])) for c in range(len(tfs))]
-        jobs += [(tables[c], sample_motion(lengths[i], law, tfs[c], grid), tfs[c], dwell, robots[c])
+        jobs += [engine.Job(tables[c], sample_motion(lengths[i], law, tfs[c], grid), tfs[c], dwell, robots[c])
                  for law in laws for c in range(len(tfs))]
     series = engine.run_many(jobs, grid, second_order)
     lead = (breaks.shape[0], len(laws), len(tfs))

@@ -110,13 +110,26 @@ def evaluation_sets(problem: Problem, config: StudyConfig) -> tuple[dict, dict]:
     return sets, grids
 
 
-def baselines(cancelled, problem: Problem, config, path, best: tuple, ruckig_candidate):
+class Baselines(NamedTuple):
+    """The baselines of a study and their evaluations: ``freqs`` the first locked-motor mode at the
+    place pose [Hz] per payload; ``candidates`` name -> ``Candidate``; ``sets`` set name -> ``ModelSet``
+    and ``grids`` the sets' own grids where they need one (``evaluation_sets``); ``evaluators`` set ->
+    {"paper": LawEvaluator} (the nominal set's only for a free path); ``evaluations`` set -> candidate
+    -> metrics dict name -> (K,)."""
+
+    freqs: tuple
+    candidates: dict
+    sets: dict
+    grids: dict
+    evaluators: dict
+    evaluations: dict
+
+
+def baselines(cancelled, problem: Problem, config, path, best: tuple, ruckig_candidate) -> Baselines | None:
     """The baselines of ``problem`` (its timing's grid given) on the best paper path ``path`` (``best``: the
-    best paper combination's (blend, law)) and their evaluations: (freqs, candidates, sets, grids, evaluators,
-    evaluations), freqs the first locked-motor mode at the place pose [Hz] per payload, candidates name ->
-    Candidate (the best law, its input-shaped versions at the first payload's mode, then ``ruckig_candidate``
-    (name, Candidate) unless None), the rest as ``_paper_evaluations``. None when ``cancelled`` is set
-    (``jaxflex.runtime.threads.Beside``)."""
+    best paper combination's (blend, law)) and their evaluations (``Baselines``): the best law, its
+    input-shaped versions at the first payload's mode, then ``ruckig_candidate`` ((name, Candidate) unless
+    None). None when ``cancelled`` is set (``jaxflex.runtime.threads.Beside``)."""
     robot, cycle, payloads, (tf, _, _) = problem
     blend, law = best
     freqs = tuple(place_first_mode_hz(robot.replace(payload=m), cycle) for m in payloads)
@@ -126,7 +139,7 @@ def baselines(cancelled, problem: Problem, config, path, best: tuple, ruckig_can
     if ruckig_candidate is not None:
         candidates[ruckig_candidate[0]] = ruckig_candidate[1]
     out = _paper_evaluations(cancelled, problem, config, path, candidates)
-    return None if out is None else (freqs, candidates) + out
+    return None if out is None else Baselines(freqs, candidates, *out)
 
 
 def _paper_evaluations(cancelled, problem: Problem, config, path, candidates):

@@ -97,20 +97,29 @@ class DesignStudy(NamedTuple):
         return self.evaluators["nominal"][c.path].series(c.law)
 
 
+class TrainingReferences(NamedTuple):
+    """What the study takes of the paper combinations on its training models: the torque ``bounds``
+    (K,) [N m], the best combination's metrics ``ref`` (name -> (K,)) and its ``evaluator`` on every
+    training model (None when not built)."""
+
+    bounds: np.ndarray
+    ref: dict
+    evaluator: LawEvaluator | None
+
+
 def training_references(models: ModelSet, nominal, sweep: PaperSweep, blend: str, law: str, tf: float,
-                         dwell: float, grid: Grid, *, per_model: bool, progress: bool):
+                        dwell: float, grid: Grid, *, per_model: bool, progress: bool) -> TrainingReferences:
     """What the study needs of the paper combinations on the training models beyond their nominal
     ones (``sweep``: the 12 combinations on the nominal models, one per payload case): the torque
     bound of every model (the poly7-Lamé peak torque) and the best combination's metrics (name ->
     (K,)). Those metrics are simulated on every model only when ``per_model`` (per-model scales,
     or the law-only optimizer, which trains on that evaluator); absolute scales use the nominal
-    model's values for its whole case, so they are taken from ``sweep``. Returns (bounds (K,), ref,
-    the best path's evaluator on every training model or None)."""
+    model's values for its whole case, so they are taken from ``sweep``."""
     i, j = sweep.blends.index(blend), sweep.profiles.index(law)
     if list(map(int, nominal)) == list(range(len(models.ids))):               # the sweep ran every model
         lame_poly7 = sweep.metrics["max_torque_nm"][sweep.blends.index("lame"), sweep.profiles.index("poly7")]
-        return (np.asarray(lame_poly7), {k: np.asarray(v[i, j]) for k, v in sweep.metrics.items()},
-                sweep.evaluators[blend])
+        return TrainingReferences(np.asarray(lame_poly7), {k: np.asarray(v[i, j]) for k, v in sweep.metrics.items()},
+                                  sweep.evaluators[blend])
     bar = Progress(f"paper references on {len(models.ids)} training models", enabled=progress)
     lame = sweep.evaluators["lame"].path
     with bar.waiting("poly7-Lamé (the torque bound) on every model"):
@@ -119,11 +128,11 @@ def training_references(models: ModelSet, nominal, sweep: PaperSweep, blend: str
     if not per_model:
         position = {int(n): c for c, n in enumerate(nominal)}
         case = np.asarray([position[int(n)] for n in nominal_of_each(models)])     # each model's payload case
-        return bounds, {k: np.asarray(v[i, j])[case] for k, v in sweep.metrics.items()}, None
+        return TrainingReferences(bounds, {k: np.asarray(v[i, j])[case] for k, v in sweep.metrics.items()}, None)
     with bar.waiting(f"{blend}/{law} (the best combination) on every model"):
         train = train_lame if blend == "lame" else LawEvaluator(models, sweep.evaluators[blend].path, tf, dwell,
                                                                   grid)
-        return bounds, train(make_profile(law)), train
+        return TrainingReferences(bounds, train(make_profile(law)), train)
 
 
 def checked_study(name: str, problem: Problem, config: StudyConfig) -> tuple[Problem, StudyConfig]:
@@ -212,7 +221,7 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
             paths["optimized"] = paths["paper"]
         wait = Progress("evaluation sets and baselines", enabled=progress)
         with wait.waiting("finishing the baselines computed beside the optimizer", key="baselines beside"):
-            freqs, candidates, sets, grids, evaluators, evaluations = beside.result()
+            freqs, candidates, sets, grids, evaluators, evaluations = beside.result()     # ``Baselines``
     candidates["optimized"] = Candidate("optimized", shaped(jnp.asarray(coef), c.train.order, name="optimized"))
     total = sum(len(s.labels) for s in sets.values())
     bar = Progress(f"the optimized design on {total} models", total=len(sets), unit="set", enabled=progress)
