@@ -37,6 +37,12 @@ def resolved(gradient, steps: int):
     return dataclasses.replace(gradient, build="fast" if steps >= HOT_STEPS else "quick")
 
 
+def check_build(build) -> None:
+    """ValueError unless ``build`` is None or one of ``runtime.options.BUILDS``."""
+    if build is not None and build not in options.BUILDS:
+        raise ValueError(f"build must be None or one of {options.BUILDS}, got {build!r}")
+
+
 def value_and_grad_fwd(f: Callable) -> Callable:
     """(value, aux), gradient of a scalar function f(params) -> (value, aux) by forward mode."""
     def vg(params):
@@ -82,6 +88,7 @@ class OneProgram:
     def __post_init__(self):
         if self.mode not in ("reverse", "forward"):
             raise ValueError(f"mode must be 'reverse' or 'forward', got {self.mode!r}")
+        check_build(self.build)
 
     def _call(self, objective, params, args):
         traced = is_pytree(objective)

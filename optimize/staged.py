@@ -48,6 +48,7 @@ from jaxflex.runtime.memo import LastCall
 from jaxflex.runtime.threads import host_map
 from jaxflex.rollout import RolloutState
 
+from .gradient import check_build
 from .objective import DesignObjective, combine_scaled
 
 
@@ -274,6 +275,9 @@ class Staged:
     ``optimize.gradient.resolved``)."""
 
     build: str | None = None
+
+    def __post_init__(self):
+        check_build(self.build)
 
     def value(self, objective: DesignObjective, params, args=()):
         """(J, per-model terms) through the staged forward programs alone (no backward pass):

@@ -83,7 +83,7 @@ print("cases:", ", ".join(f"{c.payload:g} kg in {c.tf:g} s" for c in cases))
 # ## The sweep
 #
 # Tables of linearization coefficients per blend and payload, then every blend x law x case rollout
-# and its metrics in one jitted, vmapped call. The metrics (SPEC 5) come back as arrays indexed
+# and its metrics in one jitted, vmapped call. The metrics (docs/conventions.md#metrics) come back as arrays indexed
 # (blend, law, case).
 
 # %%
