@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from . import kinematics, modes, vibration
-from .io import fmt, pct, rel_diff, table
+from . import convergence, kinematics, modes, vibration
+from .io import table
 
 FIG12 = "fig12_tracking_errors_6kg.png"
 MODES_FIGURE = "modes_along_path.png"

@@ -198,8 +198,8 @@ class LawEvaluator:
                                                     self.grid)))
                 del tables
             out = [{k: np.concatenate([p[k] for p in part]) for k in part[0]} for part in parts]
-        for law, metrics in zip(laws, out):
-            bad = [k for k, v in metrics.items() if not np.all(np.isfinite(v))]
+        for law, mets in zip(laws, out):
+            bad = [k for k, v in mets.items() if not np.all(np.isfinite(v))]
             if bad:
                 raise FloatingPointError(f"non-finite {bad} for law {getattr(law, 'name', 'samples')}")
         return out

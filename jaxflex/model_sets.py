@@ -11,7 +11,6 @@ from typing import NamedTuple, Sequence
 import jax.numpy as jnp
 import numpy as np
 
-from jaxflex import model as mdl
 from jaxflex import trees
 from jaxflex.frequencies import modes_at_point
 from jaxflex.path import Cycle

@@ -14,7 +14,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxflex.path import Cycle, Path, make_path, path_frame
+from jaxflex.path import Path, make_path, path_frame
 from jaxflex.profiles import Profile, make_profile, profile_eval, time_scaled
 from jaxflex.robot import Robot, check_cycle_reachable, joint_motion
 

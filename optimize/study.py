@@ -30,7 +30,6 @@ bit.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import time
 from typing import NamedTuple
 

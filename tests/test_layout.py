@@ -6,6 +6,8 @@
   ``__init__`` is the exception by design: the public facade over every layer, resolved lazily.
 - No module imports in a circle, through any chain of imports, in jaxflex/, optimize/ or
   experiments/.
+- No module uses a name it never defined or imported (pyflakes): a code path the tests do not run
+  (the full ``reproduce``'s report sections, say) fails there, not in a user's run.
 - The physics modules are pure functions: neither they nor anything they import reaches the
   runtime (jaxflex.runtime: compiler options, compiles, threads, memo caches, heap), and they hold
   no locks, pools or compiler options of their own.
@@ -146,3 +148,29 @@ def test_physics_modules_do_not_reach_the_runtime(name):
     own = {target for _, target in _imports(path, module)}
     assert not own & {"threading", "concurrent", "concurrent.futures", "multiprocessing"}, own
     assert "compiler_options" not in path.read_text()
+
+
+def test_no_module_uses_an_undefined_name():
+    """Every name a module uses is defined, imported or built in (pyflakes' check, on the three
+    layers and the tests); a wrong name on a path no test runs would otherwise surface only there."""
+    from pyflakes import api, messages, reporter
+
+    class Collect(reporter.Reporter):
+        def __init__(self):
+            self.found = []
+
+        def flake(self, message):
+            if isinstance(message, (messages.UndefinedName, messages.UndefinedLocal, messages.UndefinedExport)):
+                self.found.append(str(message))
+
+        def unexpectedError(self, filename, msg):
+            self.found.append(f"{filename}: {msg}")
+
+        def syntaxError(self, filename, msg, lineno, offset, text):
+            self.found.append(f"{filename}:{lineno}: {msg}")
+
+    out = Collect()
+    for folder in ("jaxflex", "optimize", "experiments", "tests"):
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            api.checkPath(str(path), out)
+    assert not out.found, "\n".join(out.found)

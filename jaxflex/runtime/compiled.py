@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import gc
 import multiprocessing
-import os
 import threading
 from concurrent.futures import Future, ProcessPoolExecutor, ThreadPoolExecutor
 
