@@ -45,7 +45,7 @@ from jaxflex.simulate import Series, low_mode_acceleration
 from jaxflex.trajectory import task_from_arc
 
 
-def _joint_samples_chunked(robot: Robot, path: Path, profile: Profile, tf, eta, side):
+def joint_samples(robot: Robot, path: Path, profile: Profile, tf, eta, side):
     """``_joint_samples`` at the normalized times eta (T,) (numpy), evaluated CHUNK samples per call
     (the last call padded with the last time): one program per path family, law kind and side for
     every run length (tf / dt), instead of one per sample count."""
@@ -114,7 +114,7 @@ def _field_jacobian(robot, motor, u):
     return jax.jacfwd(lambda v: _field(robot, motor, v)[0])(u)
 
 
-def _velocity_scaling(jac, omega):
+def velocity_scaling(jac, omega):
     """The state scaling s = [1 .. 1, 1/omega .. 1/omega] (2 ne,) and diag(s) J diag(s)^-1: with
     omega [rad/s] the scale of the elastic frequencies, the Jacobian's blocks are all about omega."""
     ne = jac.shape[0] // 2
@@ -141,7 +141,7 @@ def _exprb3(robot, h, x, stages, omega, squarings, jac):
     scaled by 1/omega [rad/s] (the scale of the elastic frequencies) inside the matrix functions, so
     that ||hJ|| is about h omega and not h omega^2; ``squarings`` is chosen for that norm. Returns the new
     state and (q_e'', tau) at the start of the step."""
-    s, scaled = _velocity_scaling(jac, omega)
+    s, scaled = velocity_scaling(jac, omega)
     a = h * scaled
     phi = lambda *v: phi_times(a, [h * s * vi for vi in v], squarings) / s
 
@@ -233,7 +233,7 @@ def reference_rollout(robot: Robot, path: Path | Sequence[Path], profile: Profil
     with bar:
         with bar.waiting("the motors' motion at every step"):
             tfa, k = jnp.asarray(tf), np.arange(n)
-            samples = [tuple(_joint_samples_chunked(robot, pth, p, tfa, eta, side)
+            samples = [tuple(joint_samples(robot, pth, p, tfa, eta, side)
                              for eta, side in ((k / n, 1), ((k + 0.5) / n, 1), ((k + 1) / n, -1)))
                        for pth, p in zip(paths, profiles)]
         # one flat batch of runs (law-major, then payload), every input repeated per run
@@ -331,7 +331,7 @@ def _start(robot, masses, qa_pick, qa_place, h, exponential):
         # the frequency scale sqrt(||dq_e''/dq_e||_1), at least the highest elastic frequency: it
         # balances the blocks h omega and h ||dq_e''/dq_e|| / omega of the scaled Jacobian
         omega = jnp.sqrt(jnp.max(jnp.sum(jnp.abs(jac[ne:, :ne]), axis=0)))
-        return x0, q_star, e_static, omega, h * jnp.max(jnp.sum(jnp.abs(_velocity_scaling(jac, omega)[1]), axis=0))
+        return x0, q_star, e_static, omega, h * jnp.max(jnp.sum(jnp.abs(velocity_scaling(jac, omega)[1]), axis=0))
     return jax.vmap(one)(masses, qa_pick, qa_place)
 
 
