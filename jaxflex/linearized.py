@@ -206,11 +206,11 @@ def remainder(robot: Robot, qa, qa1, qa2, ds, dds, x, qedd):
     # here): the same value as a JVP to round-off (~1e-12 N of ~1e-3..1e-2 N), without nesting the
     # model's own derivatives inside a second derivative, which keeps the compiled rollout and its
     # gradient much smaller
-    r0, rp, rm, r1, r1m = jax.vmap(lambda t: full(t * z))(jnp.asarray(_REMAINDER_T))
+    r0, rp, rm, r1, r1m = jax.vmap(lambda t: full(t * z))(jnp.asarray(REMAINDER_T))
     return (r1 - r0) - (8.0 * (rp - rm) - (r1 - r1m)) / 6.0
 
 
-_REMAINDER_T = (0.0, 0.5, -0.5, 1.0, -1.0)
+REMAINDER_T = (0.0, 0.5, -0.5, 1.0, -1.0)
 
 
 def path_pose(robot: Robot, path: Path, s):

@@ -213,7 +213,7 @@ def _recurrence(phi, x0, b, unroll, keep: bool = True):
     return (x_m, states) if keep else x_m
 
 
-def _per_interval(a, v):
+def per_interval(a, v):
     """a (Nc, i, j) applied to the rows of v (Nc m, j) interval by interval -> (Nc m, i)."""
     nc = a.shape[0]
     return jnp.einsum("cij,cmj->cmi", a, v.reshape((nc, -1) + v.shape[1:])).reshape(v.shape[:1] + a.shape[1:2])
@@ -226,7 +226,7 @@ def _outputs(fz: _Frozen, c: FastCoeffs, ds, dds, x, f, tr):
     products over all nodes: a few operations, not a few per coarse interval)."""
     ne = fz.k.shape[1]
     q, qd = x[:, :ne], x[:, ne:]
-    mv = _per_interval
+    mv = per_interval
     qdd = mv(fz.minv, f - mv(fz.c, qd) - mv(fz.k, q))
     node = lambda a, v: jnp.einsum("nij,nj->ni", a, v)
     e = node(c.jx, q)
@@ -245,7 +245,7 @@ def _motion(x0, frozen, f_start, f_end, tr_start, fast_start, ds, dds, grid: Gri
     runs in the loop; the forcing increments before it and the outputs after it are batched over
     all the nodes (the loop's per-iteration work, not the arithmetic, dominates a rollout's time)."""
     nc, m = grid.coarse, grid.fine
-    b = _per_interval(frozen.g0, f_start) + _per_interval(frozen.g1, f_end - f_start)   # (N, 2 ne)
+    b = per_interval(frozen.g0, f_start) + per_interval(frozen.g1, f_end - f_start)   # (N, 2 ne)
 
     def coarse_step(x, inp):
         phi, bc = inp
@@ -258,16 +258,16 @@ def _motion(x0, frozen, f_start, f_end, tr_start, fast_start, ds, dds, grid: Gri
     return x_tf, _outputs(frozen, fast_start, ds, dds, xs, f_start, tr_start)
 
 
-def _jump_nodes(grid: Grid) -> np.ndarray:
+def jump_nodes(grid: Grid) -> np.ndarray:
     """Fine-node indices of tf/8, 2 tf/8, ..., tf: where the paper laws' s'' may jump."""
     return np.arange(1, 9) * (grid.coarse // 8) * grid.fine
 
 
-def _remainder_stencil(grid: Grid):
+def remainder_stencil(grid: Grid):
     """Static sampling and interpolation plan of the second-order remainder.
 
     The remainder is sampled (right limits) at ``grid.remainder_points`` fine nodes per coarse
-    interval (offsets round(k m / r)) and, as a left limit, at every jump node (``_jump_nodes``;
+    interval (offsets round(k m / r)) and, as a left limit, at every jump node (``jump_nodes``;
     the last is tf). Between consecutive samples of one jump-free segment it is linear in time.
     Returns the right-limit sample nodes (S,), and for the start and the end of every fine step
     (N,) the indices of the two bracketing samples in [right samples, left samples] and the weight
@@ -276,7 +276,7 @@ def _remainder_stencil(grid: Grid):
     nc, m, r = grid.coarse, grid.fine, max(1, min(grid.remainder_points, grid.fine))
     offsets = np.unique(np.round(np.arange(r) * m / r).astype(int))
     right = (np.arange(nc)[:, None] * m + offsets[None, :]).ravel()
-    jumps = _jump_nodes(grid)
+    jumps = jump_nodes(grid)
     n = nc * m
     seg_of_step = np.searchsorted(jumps, np.arange(n), side="right")       # segment of every step
     plans = []
@@ -300,7 +300,7 @@ def _remainder_stencil(grid: Grid):
 
 class Sites(NamedTuple):
     """Where the second-order remainder is sampled (S sites: the right-limit nodes of
-    ``_remainder_stencil``, then the left limits at the jump nodes): the pose qa (S, 2) [rad] with its
+    ``remainder_stencil``, then the left limits at the jump nodes): the pose qa (S, 2) [rad] with its
     arc-length derivatives qa1 [rad/m] and qa2 [rad/m^2], the path speed ds [m/s] and acceleration
     dds [m/s^2], the first pass's elastic state x = [q_e, q_e'] (S, 2 ne) and acceleration qdd (S, ne)."""
 
@@ -359,7 +359,7 @@ def first_pass(tables: Tables, prep: Prepared, samples: MotionSamples, grid: Gri
 
     Returns (forcing, sites): ``prep.forcing`` with, if ``grid.continuous``, the variation of the
     coefficients within each coarse interval along the first-pass solution (1. below), and the
-    inputs of ``remainders`` at the nodes of ``_remainder_stencil`` (2.).
+    inputs of ``remainders`` at the nodes of ``remainder_stencil`` (2.).
 
     1. Continuous coefficients: the first pass freezes M, C, K over each coarse interval, so they
        jump at its ends; every jump kicks the undamped kHz modes (an artefact that does not
@@ -369,7 +369,7 @@ def first_pass(tables: Tables, prep: Prepared, samples: MotionSamples, grid: Gri
        interval), evaluated along the first-pass solution at every fine node: the effective
        coefficients are then continuous and accurate to O(H^2).
     2. The full model's second-order remainder R(z1) - R(0) - R'(0) z1 along the first-pass
-       solution z1 = [q_e, q_e', q_e''] is sampled at the nodes of ``_remainder_stencil``
+       solution z1 = [q_e, q_e', q_e''] is sampled at the nodes of ``remainder_stencil``
        (``remainders``) and enters, linear in time in between, as forcing and torque
        (``add_remainders``)."""
     nc, m = grid.coarse, grid.fine
@@ -378,7 +378,7 @@ def first_pass(tables: Tables, prep: Prepared, samples: MotionSamples, grid: Gri
     ne = x0.shape[0] // 2
     x1_tf, x1 = _motion(x0, frozen, f_start, f_end, forcing.tr_start, fast_start, samples.start[1],
                         samples.start[2], grid, states=True)
-    mv = _per_interval
+    mv = per_interval
     x1_end = jnp.concatenate([x1[1:], x1_tf[None]])                   # state at the end of every step
     acc = lambda f, x: mv(frozen.minv, f - mv(frozen.c, x[:, ne:]) - mv(frozen.k, x[:, :ne]))
     qdd1_start = acc(f_start, x1)
@@ -412,8 +412,8 @@ def first_pass(tables: Tables, prep: Prepared, samples: MotionSamples, grid: Gri
 
     # ---- 2. where the second-order remainder is sampled: right limits at the stencil's nodes and
     # left limits at the jump nodes (one model evaluation site each)
-    right, _ = _remainder_stencil(grid)
-    before = _jump_nodes(grid) - 1                         # last fine step before each jump node
+    right, _ = remainder_stencil(grid)
+    before = jump_nodes(grid) - 1                         # last fine step before each jump node
     cat = lambda a, b: jnp.concatenate([a[right], b[before]])
     sites = Sites(cat(fast_start.qa, fast_end.qa), cat(fast_start.qa1, fast_end.qa1), cat(fast_start.qa2, fast_end.qa2),
                   cat(samples.start[1], samples.end[1]), cat(samples.start[2], samples.end[2]),
@@ -429,8 +429,8 @@ def remainders(robot, sites: Sites) -> jax.Array:
 
 def add_remainders(forcing: Forcing, r_all, grid: Grid) -> Forcing:
     """``forcing`` with the remainders at the sites (``remainders``), linear in time between the
-    samples of one jump-free segment (``_remainder_stencil``)."""
-    _, ((lo_s, hi_s, w_s), (lo_e, hi_e, w_e)) = _remainder_stencil(grid)
+    samples of one jump-free segment (``remainder_stencil``)."""
+    _, ((lo_s, hi_s, w_s), (lo_e, hi_e, w_e)) = remainder_stencil(grid)
     lin = lambda lo, hi, w: r_all[lo] * (1.0 - w)[:, None] + r_all[hi] * w[:, None]
     at_start, at_end = lin(lo_s, hi_s, w_s), lin(lo_e, hi_e, w_e)
     return Forcing(forcing.f_start - at_start[:, 2:], forcing.f_end - at_end[:, 2:],

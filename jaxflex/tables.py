@@ -25,6 +25,7 @@ from jaxflex.robot import Robot, check_reachable, igm
 from jaxflex.runtime.memo import ContentMemo
 from jaxflex.runtime.options import BUILD
 from jaxflex.runtime.threads import host_map
+from jaxflex.servo_linearized import build_servo_tables
 from jaxflex.workspace import PROBES, FIELDS, Workspace, combine_probes, grid_points, grid_shape
 
 COEFF_CHUNK = sum(SEGMENT_NODES)   # poses per call of the shared coefficient program: one path table
@@ -129,3 +130,12 @@ def build_workspace(robot: Robot, cycle: Cycle, spacing: float = 0.005) -> Works
 def build_workspaces(robots: Robot, cycle: Cycle, spacing: float = 0.005) -> Workspace:
     """``build_workspace`` for a stack of K robots: a Workspace whose leaves have a leading axis K."""
     return _workspaces(robots, trees.unstack(robots), cycle, spacing, stacked=True)
+
+
+_servo_tables = jax.jit(build_servo_tables, compiler_options=BUILD)
+
+
+def servo_path_tables(robot: Robot, path: Path) -> Tables:
+    """The servo coefficients (``servo_linearized.ServoCoeffs``) tabulated along the path, on concrete
+    values through one compiled program per blend family."""
+    return _servo_tables(robot, path)
