@@ -36,6 +36,7 @@ from jaxflex.path import Path
 from jaxflex.profiles import Profile
 from jaxflex.robot import Robot
 from jaxflex.rollout import RolloutModel, RolloutState
+from jaxflex.servo_simulate import Schedule, servo_schedule
 from jaxflex.simulate import Grid, MotionSamples, Series, motion_samples
 from jaxflex.tables import path_tables
 
@@ -120,6 +121,18 @@ def sample_motion(length, profile: Profile, tf, grid: Grid) -> MotionSamples:
     operation of the law on its own."""
     return _motion_samples(jnp.asarray(length, dtype=float), dataclasses.replace(profile, name=""),
                            jnp.asarray(tf, dtype=float), grid)
+
+
+@functools.partial(jax.jit, static_argnames=("grid",))
+def _schedule(length, profile, tf, dwell, period, grid):
+    return servo_schedule(length, profile, tf, dwell, grid, period)
+
+
+def sample_schedule(length, profile: Profile, tf, dwell, grid: Grid, rate) -> Schedule:
+    """``servo_simulate.servo_schedule`` on concrete values (one compiled program per kind of law):
+    where the servo's samples at ``rate`` [Hz] fall in the grid's steps, and the reference there."""
+    f = lambda v: jnp.asarray(v, dtype=float)
+    return _schedule(f(length), dataclasses.replace(profile, name=""), f(tf), f(dwell), 1.0 / f(rate), grid)
 
 
 REMEMBERED_MODELS = 16      # LawEvaluators of at most this many models keep their tables in the memo

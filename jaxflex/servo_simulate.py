@@ -59,7 +59,7 @@ class Schedule(NamedTuple):
 def sample_positions(t0, h, count, period):
     """(has, theta) (count,) of the steps [t0 + j h, t0 + (j + 1) h): whether a sample k T falls in
     the step, and at which fraction of it (each sample in exactly one step; T > h required)."""
-    t = t0 + jnp.arange(count) * h
+    t = t0 + jnp.arange(count, dtype=float) * h
     eps = 1e-9
     k = jnp.ceil(t / period - eps)
     ts = k * period
@@ -191,8 +191,8 @@ def _lagrange(theta):
     the nodes i / NODES: the DEGREE + 1 nodes around it."""
     pos = theta * NODES
     start = jnp.clip(jnp.floor(pos).astype(int) - (DEGREE - 1) // 2, 0, NODES - DEGREE)
-    u = pos - start
-    k = jnp.arange(DEGREE + 1)
+    u = pos - start.astype(float)
+    k = jnp.arange(DEGREE + 1, dtype=float)
     diff = u - k
     # w_k = prod_{j != k} (u - j) / (k - j)
     num = jnp.prod(jnp.where(jnp.eye(DEGREE + 1, dtype=bool), 1.0, diff[None, :]), axis=1)
