@@ -36,9 +36,10 @@ from jaxflex.path import Path
 from jaxflex.profiles import Profile
 from jaxflex.robot import Robot
 from jaxflex.rollout import RolloutModel, RolloutState
-from jaxflex.servo_simulate import Schedule, servo_schedule
+from jaxflex.servo import check_stable, with_rotor
+from jaxflex.servo_simulate import Schedule, servo_grid, servo_schedule
 from jaxflex.simulate import Grid, MotionSamples, Series, motion_samples
-from jaxflex.tables import path_tables
+from jaxflex.tables import path_tables, servo_path_tables
 
 
 def _stage(model: RolloutModel, inputs: RolloutState, stage: rl.Stage) -> RolloutState:
@@ -50,14 +51,15 @@ def _stage(model: RolloutModel, inputs: RolloutState, stage: rl.Stage) -> Rollou
 _program = jax.jit(_stage, static_argnames=("stage",), compiler_options=HOT_LOOP)
 
 
-def programs(second_order: bool) -> tuple[rl.Stage, ...]:
+def programs(second_order: bool, servo: bool = False) -> tuple[rl.Stage, ...]:
     """The engine's programs over the stages of a rollout from its tables and samples to its series
-    (``rollout.between("first pass", "last pass")``): the second-order model as one program per
-    stage, because inside one program the remainder's thousand-odd small operations cost much more
-    than their own time (docs/performance.md); the linearized model, which has no remainder, as one
-    program."""
-    stages = rl.between("first pass", "last pass")
-    return stages if second_order else (rl.compose(stages),)
+    (``rollout.between("first pass", "servo loop")`` as the controller selects them): with the
+    perfect controller, the second-order model as one program per stage, because inside one program
+    the remainder's thousand-odd small operations cost much more than their own time
+    (docs/performance.md), the linearized model, which has no remainder, as one program; under a
+    servo (``servo``) the feedforward and the closed loop, one program each."""
+    stages = tuple(s for s in rl.between("first pass", "servo loop") if s.runs_with(servo))
+    return stages if second_order or servo else (rl.compose(stages),)
 
 
 def cache_size() -> int:
@@ -65,34 +67,54 @@ def cache_size() -> int:
     return _program._cache_size()
 
 
+class ServoJob(NamedTuple):
+    """What a rollout under a servo adds (``run``): the ``servo``, the path's ``servo_tables``
+    (``servo_linearized``), the sample ``schedule`` (``sample_schedule``), and either the
+    ``feedforward`` (N + 1 + Nd + 1, 2) [N m] at the nodes or None (computed for ``controller``, the
+    controller's model; None: the robot simulated)."""
+
+    servo: object
+    servo_tables: Tables
+    schedule: Schedule
+    feedforward: jax.Array | None = None
+    controller: Robot | None = None
+
+
 def run(tables: Tables, samples: MotionSamples, tf, dwell, robot: Robot, grid: Grid,
-        second_order: bool = True) -> Series:
+        second_order: bool = True, servo: ServoJob | None = None) -> Series:
     """One rollout (motion over [0, tf] [s], dwell [s]) of the model ``robot`` whose path tables are
     ``tables``, through the shared compiled programs (``programs``). ``second_order`` (default): the
-    full model's second-order remainder is added; False: the linearized model."""
-    model = RolloutModel(robot=robot, tf=jnp.asarray(tf, dtype=float), dwell=jnp.asarray(dwell, dtype=float),
-                         grid=grid, second_order=second_order)
+    full model's second-order remainder is added; False: the linearized model. ``servo``: the motors
+    driven by a servo loop (``ServoJob``; the robot with the servo's rotor); None: prescribed."""
+    f = lambda v: jnp.asarray(v, dtype=float)
+    model = RolloutModel(robot=robot, tf=f(tf), dwell=f(dwell), grid=grid, second_order=second_order,
+                         servo=None if servo is None else servo.servo,
+                         controller=None if servo is None else servo.controller)
     state = RolloutState(tables=tables, samples=samples)
-    for stage in programs(second_order):
+    if servo is not None:
+        state = state._replace(servo_tables=servo.servo_tables, schedule=servo.schedule, feedforward=servo.feedforward)
+    for stage in rl.remaining(state, programs(second_order, servo is not None)):
         state = rl.merge(state, _program(model, rl.restrict(state, stage.reads), stage=stage), stage.writes)
     return state.series
 
 
 class Job(NamedTuple):
     """One rollout for ``run_many``: the path ``tables`` of the model ``robot``, the motion
-    ``samples``, the motion time ``tf`` [s] and the ``dwell`` [s]."""
+    ``samples``, the motion time ``tf`` [s], the ``dwell`` [s], and under a servo its ``ServoJob``."""
 
     tables: Tables
     samples: MotionSamples
     tf: float
     dwell: float
     robot: Robot
+    servo: ServoJob | None = None
 
 
 def run_many(jobs: Sequence[Job], grid: Grid, second_order: bool = True) -> Series:
     """Rollouts of the jobs (``Job``), stacked along a leading axis (run
     side by side on the host's cores, ``jaxflex.runtime.threads``)."""
-    return trees.stack(host_map(lambda job: run(*job, grid=grid, second_order=second_order), jobs))
+    return trees.stack(host_map(lambda job: run(*job[:5], grid=grid, second_order=second_order, servo=job.servo),
+                                jobs))
 
 
 @jax.jit
@@ -123,16 +145,14 @@ def sample_motion(length, profile: Profile, tf, grid: Grid) -> MotionSamples:
                            jnp.asarray(tf, dtype=float), grid)
 
 
-@functools.partial(jax.jit, static_argnames=("grid",))
-def _schedule(length, profile, tf, dwell, period, grid):
-    return servo_schedule(length, profile, tf, dwell, grid, period)
+_schedule = jax.jit(servo_schedule, static_argnames=("grid",))
 
 
-def sample_schedule(length, profile: Profile, tf, dwell, grid: Grid, rate) -> Schedule:
-    """``servo_simulate.servo_schedule`` on concrete values (one compiled program per kind of law):
-    where the servo's samples at ``rate`` [Hz] fall in the grid's steps, and the reference there."""
+def sample_schedule(tf, dwell, grid: Grid, rate) -> Schedule:
+    """``servo_simulate.servo_schedule`` on concrete values (one compiled program per grid): where
+    the servo's samples at ``rate`` [Hz] fall in the grid's steps."""
     f = lambda v: jnp.asarray(v, dtype=float)
-    return _schedule(f(length), dataclasses.replace(profile, name=""), f(tf), f(dwell), 1.0 / f(rate), grid)
+    return _schedule(f(tf), f(dwell), grid, 1.0 / f(rate))
 
 
 REMEMBERED_MODELS = 16      # LawEvaluators of at most this many models keep their tables in the memo
@@ -147,46 +167,98 @@ class LawEvaluator:
     model at a time, so evaluators of any model set share them. ``keep=False``: the tables are not
     kept but built again at every call, in groups of ``STREAM_MODELS`` models used for every law of
     the call (``metrics_many``) and dropped (for a large set: the memory of a few models' tables
-    instead of all of them)."""
+    instead of all of them).
 
-    def __init__(self, models: ModelSet, path: Path, tf: float, dwell: float, grid: Grid, *, keep: bool = True):
+    ``servo``: the motors driven by a servo loop (``jaxflex.servo.Servo``, or one per model; None:
+    the perfect controller). Each model then gets its servo's rotor, the grid is refined to the
+    fastest servo's period (``servo_simulate.servo_grid``), and every loop is checked for stability
+    along the path first (``servo.check_stable``). The feedforward is computed for ``controller``
+    (the controller's model, e.g. the nominal robot of a box; None: each model its own): the rigid
+    inverse dynamics, or the flexible one from the controller's perfect-controller rollout."""
+
+    def __init__(self, models: ModelSet, path: Path, tf: float, dwell: float, grid: Grid, *, keep: bool = True,
+                 servo=None, controller: Robot | None = None):
         k = len(models.labels)
+        self._robots = models.singles()
+        self._servos = None
+        if servo is not None:
+            servos = list(servo) if isinstance(servo, (list, tuple)) else [servo] * k
+            if len(servos) != k:
+                raise ValueError(f"{len(servos)} servos for {k} models")
+            self._servos = [sv.checked() for sv in servos]
+            self._robots = [with_rotor(r, sv) for r, sv in zip(self._robots, self._servos)]
+            for r, sv in zip(self._robots, self._servos):
+                check_stable(r, sv, path, float(tf) + float(dwell))
+            grid = servo_grid(grid, tf, dwell, max(float(sv.rate) for sv in self._servos))
         self.models, self.path, self.tf, self.dwell, self.grid = models, path, tf, dwell, grid
+        self.controller = controller
         # the tables built and kept per model (the rollouts take them one model at a time), in one
         # copy (they add up over a large set such as the studies' evaluation models, docs/performance.md);
         # the same coefficient program on the same chunks of poses as a stacked build, so the same values.
         # Without ``keep`` every call builds them again (in groups of models, see ``metrics_many``):
         # a few models' tables in memory at a time, the same values.
-        self._robots = models.singles()
         self._remember = k <= REMEMBERED_MODELS     # small sets come again (``tables.coeffs_many``)
         self._tables = host_map(self._build, self._robots) if keep else None
 
-    def _build(self, robot: Robot) -> Tables:
-        return path_tables(robot, self.path, remember=self._remember)
+    @property
+    def servos(self) -> list | None:
+        """The servo of each model (None: the perfect controller)."""
+        return self._servos
+
+    def _build(self, robot: Robot):
+        """The path's tables of one model (with its servo tables under a servo)."""
+        tables = path_tables(robot, self.path, remember=self._remember)
+        return tables if self._servos is None else (tables, servo_path_tables(robot, self.path))
 
     @property
     def tables(self) -> Tables:
         """The tables of every model, stacked along a leading axis K (a new copy at each access)."""
-        return trees.stack(self._tables if self._tables is not None else host_map(self._build, self._robots))
+        built = self._tables if self._tables is not None else host_map(self._build, self._robots)
+        return trees.stack([b if self._servos is None else b[0] for b in built])
 
     def with_grid(self, grid: Grid) -> "LawEvaluator":
         """The same path and models on another grid, sharing the tables (they do not depend on it)."""
         other = object.__new__(LawEvaluator)
+        if self._servos is not None:
+            grid = servo_grid(grid, self.tf, self.dwell, max(float(sv.rate) for sv in self._servos))
         other.__dict__.update(self.__dict__, grid=grid)
         return other
 
     def samples(self, profile: Profile, tf: float | None = None) -> MotionSamples:
         return sample_motion(self.path.length, profile, self.tf if tf is None else tf, self.grid)
 
+    def _feedforward(self, samples: MotionSamples, tf: float):
+        """The controller's flexible feedforward at the nodes (None: computed per model)."""
+        if self._servos is None or self.controller is None or self._servos[0].feedforward != "flexible":
+            return None
+        if any(sv.feedforward != "flexible" for sv in self._servos):
+            raise ValueError("one feedforward kind for every model of an evaluator")
+        tables = path_tables(self.controller, self.path)
+        series = run(tables, samples, tf, self.dwell, self.controller, self.grid)
+        return jnp.concatenate([series.tau, series.tau_dwell])
+
+    def _jobs(self, built: list, indices, samples: MotionSamples, tf: float, feedforward) -> list[Job]:
+        if self._servos is None:
+            return [Job(built[j], samples, tf, self.dwell, self._robots[i]) for j, i in enumerate(indices)]
+        jobs = []
+        for j, i in enumerate(indices):
+            servo = self._servos[i]
+            extra = ServoJob(servo, built[j][1], sample_schedule(tf, self.dwell, self.grid, servo.rate), feedforward,
+                             None if feedforward is not None else self.controller)
+            jobs.append(Job(built[j][0], samples, tf, self.dwell, self._robots[i], extra))
+        return jobs
+
     def series(self, law, tf: float | None = None):
         """The simulation ``Series`` of a law on every model (leading axis K)."""
         tf = self.tf if tf is None else tf
         samples = law if isinstance(law, MotionSamples) else self.samples(law, tf)
+        ff = self._feedforward(samples, tf)
         if self._tables is None:
-            return trees.stack(host_map(lambda robot: run(self._build(robot), samples, tf, self.dwell, robot,
-                                                          self.grid), self._robots))
-        jobs = [Job(tables, samples, tf, self.dwell, robot) for tables, robot in zip(self._tables, self._robots)]
-        return run_many(jobs, self.grid)
+            def one(i):
+                job = self._jobs([self._build(self._robots[i])], [i], samples, tf, ff)[0]
+                return run(*job[:5], grid=self.grid, servo=job.servo)
+            return trees.stack(host_map(one, range(len(self._robots))))
+        return run_many(self._jobs(self._tables, range(len(self._robots)), samples, tf, ff), self.grid)
 
     def __call__(self, law, tf: float | None = None) -> dict:
         """law: a Profile or MotionSamples -> metrics dict name -> (K,) numpy arrays. ``tf`` [s]
@@ -202,14 +274,14 @@ class LawEvaluator:
         if self._tables is not None:
             out = [metrics_of(self.series(smp, tf)) for smp in samples]
         else:
+            ffs = [self._feedforward(smp, tf) for smp in samples]
             parts = [[] for _ in laws]
             for i in range(0, len(self._robots), STREAM_MODELS):
-                robots = self._robots[i:i + STREAM_MODELS]
-                tables = host_map(self._build, robots)
-                for part, smp in zip(parts, samples):
-                    part.append(metrics_of(run_many([Job(t, smp, tf, self.dwell, r) for t, r in zip(tables, robots)],
-                                                    self.grid)))
-                del tables
+                indices = range(i, min(i + STREAM_MODELS, len(self._robots)))
+                built = host_map(self._build, [self._robots[j] for j in indices])
+                for part, smp, ff in zip(parts, samples, ffs):
+                    part.append(metrics_of(run_many(self._jobs(built, indices, smp, tf, ff), self.grid)))
+                del built
             out = [{k: np.concatenate([p[k] for p in part]) for k in part[0]} for part in parts]
         for law, mets in zip(laws, out):
             bad = [k for k, v in mets.items() if not np.all(np.isfinite(v))]

@@ -6,14 +6,23 @@ place pose. It is written once, as the stages of ``STAGES``, each a pure functio
 and the ``RolloutState`` that the stages fill in turn:
 
     path and tables   design                               -> tables, samples
-    first pass        tables, samples                      -> prep, sites
-    remainder         sites                                -> remainders
-    last pass         tables, samples, prep, remainders    -> series
+    servo tables      design                               -> servo_tables, schedule         (servo)
+    first pass        tables, samples                      -> prep, sites               (prescribed)
+    remainder         sites                                -> remainders                (prescribed)
+    last pass         tables, samples, prep, remainders    -> series                    (prescribed)
+    feedforward       tables, samples                      -> feedforward                    (servo)
+    servo loop        tables, servo_tables, samples,
+                      schedule, feedforward                -> series                         (servo)
     metrics           series                               -> terms
 
 (``jaxflex.simulate`` holds the integrator these stages call: the frozen-coefficient passes, the
-continuous-coefficient correction and the second-order remainder.) A state may start anywhere in
-the list: given its tables and samples, a rollout starts at the first pass (``remaining``).
+continuous-coefficient correction and the second-order remainder; ``jaxflex.servo_simulate`` the
+same integrator with the motors driven by a servo.) With the perfect controller (``model.servo``
+None, the paper's) the motor angles are prescribed and the three passes run; with a servo
+(``jaxflex.servo.Servo``) the motors are states of the closed loop, driven by the feedforward and
+the sampled feedback, and the servo stages run instead (``active``). A state may start anywhere in
+the list: given its tables and samples, a rollout starts at the first pass (``remaining``); a field
+given in the state (the feedforward of a nominal model, for instance) is not computed again.
 
 Every way the library runs a rollout reads this list, so a stage added here reaches all of them:
 
@@ -39,6 +48,9 @@ from jaxflex.metrics import Terms, terms
 from jaxflex.path import Cycle
 from jaxflex.profiles import shaped
 from jaxflex.robot import Robot
+from jaxflex.servo import Servo
+from jaxflex.servo_linearized import build_servo_tables
+from jaxflex.servo_simulate import Schedule, closed_loop, feedforward_torques, servo_schedule
 from jaxflex.simulate import (Grid, MotionSamples, Prepared, Series, Sites, add_remainders, first_pass,
                               motion_samples, prepare, remainders, second_pass)
 from jaxflex.workspace import Workspace, workspace_tables
@@ -55,15 +67,19 @@ class RolloutModel:
     simulated after it; cycle and workspace: where the path stage builds a design's path and its
     tables (workspace None: the tables from the model, ``linearized.build_tables``; else
     interpolated from the robot's workspace tables, ``jaxflex.workspace``); only the path stage reads
-    them. Static (part of the compiled program's identity): the ``grid``; ``second_order`` (the full
-    model's second-order remainder is added; False: the linearized model); the design's ``blend``
-    family and the shaped law's end-factor ``order`` (path stage)."""
+    them. ``servo``: the servo loop driving the motors (None: the perfect controller, the motor
+    angles prescribed); ``robot`` then carries the servo's rotor (``servo.with_rotor``). Static (part
+    of the compiled program's identity): the ``grid``; ``second_order`` (the full model's
+    second-order remainder is added; False: the linearized model); the design's ``blend`` family and
+    the shaped law's end-factor ``order`` (path stage)."""
 
     robot: Robot
     tf: jax.Array
     dwell: jax.Array
     cycle: Cycle | None = None
     workspace: Workspace | None = None
+    servo: Servo | None = None
+    controller: Robot | None = None
     grid: Grid = dataclasses.field(default=Grid(), **_static)
     second_order: bool = dataclasses.field(default=True, **_static)
     blend: str = dataclasses.field(default="lame", **_static)
@@ -76,13 +92,19 @@ class RolloutState(NamedTuple):
     design: the blend parameters and law coefficients (``jaxflex.designs.Design``); tables: the
     path's coefficient tables; samples: the motion law on the grid; prep: the frozen maps, node
     coefficients and forcing of the passes (the first pass's corrections included); sites: where the
-    second-order remainder is sampled; remainders (S, 2 + ne): its values there; series: the
-    outputs at every node (``simulate.Series``); terms: the metrics and the residual terms
-    (``metrics.Terms``)."""
+    second-order remainder is sampled; remainders (S, 2 + ne): its values there; servo_tables: the
+    path's tables of the motors' coefficients (``servo_linearized``); schedule: where the servo's
+    samples fall in the grid's steps (``servo_simulate.Schedule``); feedforward (N + 1 + Nd + 1, 2)
+    [N m]: the servo's feedforward torque at the motion's and the dwell's nodes; series: the outputs
+    at every node (``simulate.Series``), of the closed loop under a servo; terms: the metrics and the
+    residual terms (``metrics.Terms``)."""
 
     design: Design | None = None
     tables: Tables | None = None
     samples: MotionSamples | None = None
+    servo_tables: Tables | None = None
+    schedule: Schedule | None = None
+    feedforward: jax.Array | None = None
     prep: Prepared | None = None
     sites: Sites | None = None
     remainders: jax.Array | None = None
@@ -100,6 +122,14 @@ def path_stage(model: RolloutModel, state: RolloutState) -> RolloutState:
         tables = workspace_tables(model.workspace, model.robot, path)
     samples = motion_samples(path.length, shaped(state.design.coef, model.order), model.tf, model.grid)
     return state._replace(tables=tables, samples=samples)
+
+
+def servo_tables_stage(model: RolloutModel, state: RolloutState) -> RolloutState:
+    """The design path's servo tables (``servo_linearized.build_servo_tables``, from the model) and
+    the servo's sample schedule on the grid (``servo_simulate.servo_schedule``)."""
+    path = design_path(model.cycle, state.design, model.blend)
+    return state._replace(servo_tables=build_servo_tables(model.robot, path),
+                          schedule=servo_schedule(model.tf, model.dwell, model.grid, model.servo.period))
 
 
 def first_stage(model: RolloutModel, state: RolloutState) -> RolloutState:
@@ -128,6 +158,32 @@ def last_stage(model: RolloutModel, state: RolloutState) -> RolloutState:
     return state._replace(series=second_pass(state.tables, prep, state.samples, model.tf, model.dwell, model.grid))
 
 
+def feedforward_stage(model: RolloutModel, state: RolloutState) -> RolloutState:
+    """The servo's feedforward at the nodes (``servo_simulate.feedforward_torques``) of its kind:
+    "rigid" the rigid inverse dynamics of ``model.controller`` (default the robot); "flexible" the
+    torque of the robot's perfect-controller rollout (the three passes; for another model's, give
+    the field in the state)."""
+    kind = model.servo.feedforward
+    series = None
+    if kind == "flexible":
+        if model.controller is not None:
+            raise ValueError("a flexible feedforward of another model than the one simulated is given in the state")
+        prescribed = dataclasses.replace(model, servo=None)
+        series = run(prescribed, restrict(state, ("tables", "samples")), between("first pass", "last pass")).series
+    controller = model.robot if model.controller is None else model.controller
+    return state._replace(feedforward=feedforward_torques(kind, controller, state.tables, state.samples, model.grid,
+                                                          series))
+
+
+def servo_stage(model: RolloutModel, state: RolloutState) -> RolloutState:
+    """The closed loop under the servo (``servo_simulate.closed_loop``), with the full model's
+    second-order remainder for the second-order model."""
+    robot = model.robot if model.second_order else None
+    return state._replace(series=closed_loop(state.tables, state.servo_tables, state.samples, state.schedule,
+                                             state.feedforward, model.tf, model.dwell, model.grid, model.servo,
+                                             robot))
+
+
 def metrics_stage(model: RolloutModel, state: RolloutState) -> RolloutState:
     """The metrics and the residual terms of the series (``metrics.terms``)."""
     return state._replace(terms=terms(state.series))
@@ -135,21 +191,40 @@ def metrics_stage(model: RolloutModel, state: RolloutState) -> RolloutState:
 
 class Stage(NamedTuple):
     """A named stage: ``fn(model, state) -> state`` reads the state fields ``reads`` and writes
-    ``writes``. Hashable (a static argument of the interpreters' compiled programs)."""
+    ``writes``; it runs ``when`` "always", under the perfect controller ("prescribed") or under a
+    servo ("servo"). Hashable (a static argument of the interpreters' compiled programs)."""
 
     name: str
     fn: Callable
     reads: tuple
     writes: tuple
+    when: str = "always"
+
+    def runs_with(self, servo: bool) -> bool:
+        """Whether the stage runs under a servo (``servo``) or under the perfect controller."""
+        return self.when == "always" or (self.when == "servo") == servo
+
+    def active(self, model: RolloutModel) -> bool:
+        """Whether the stage runs in a rollout of ``model``."""
+        return self.runs_with(model.servo is not None)
 
 
 STAGES = (
     Stage("path and tables", path_stage, ("design",), ("tables", "samples")),
-    Stage("first pass", first_stage, ("tables", "samples"), ("prep", "sites")),
-    Stage("remainder", remainder_stage, ("sites",), ("remainders",)),
-    Stage("last pass", last_stage, ("tables", "samples", "prep", "remainders"), ("series",)),
+    Stage("servo tables", servo_tables_stage, ("design",), ("servo_tables", "schedule"), "servo"),
+    Stage("first pass", first_stage, ("tables", "samples"), ("prep", "sites"), "prescribed"),
+    Stage("remainder", remainder_stage, ("sites",), ("remainders",), "prescribed"),
+    Stage("last pass", last_stage, ("tables", "samples", "prep", "remainders"), ("series",), "prescribed"),
+    Stage("feedforward", feedforward_stage, ("tables", "samples"), ("feedforward",), "servo"),
+    Stage("servo loop", servo_stage, ("tables", "servo_tables", "samples", "schedule", "feedforward"), ("series",),
+          "servo"),
     Stage("metrics", metrics_stage, ("series",), ("terms",)),
 )
+
+
+def active(model: RolloutModel, stages=None) -> tuple[Stage, ...]:
+    """The ``stages`` (default ``STAGES``) that run in a rollout of ``model`` (``Stage.active``)."""
+    return tuple(s for s in (STAGES if stages is None else stages) if s.active(model))
 
 
 def between(first: str | None = None, last: str | None = None) -> tuple[Stage, ...]:
@@ -163,11 +238,12 @@ def between(first: str | None = None, last: str | None = None) -> tuple[Stage, .
 
 def remaining(state: RolloutState, stages=None) -> tuple[Stage, ...]:
     """The stages still to run on ``state`` (of ``stages``, default ``STAGES``): from the first one
-    with an output not yet in it."""
+    with an output not yet in it, but those after it whose outputs are all given."""
     stages = STAGES if stages is None else stages
+    missing = lambda stage: any(getattr(state, name) is None for name in stage.writes)
     for i, stage in enumerate(stages):
-        if any(getattr(state, name) is None for name in stage.writes):
-            return tuple(stages[i:])
+        if missing(stage):
+            return (stage,) + tuple(s for s in stages[i + 1:] if missing(s))
     return ()
 
 
@@ -204,9 +280,9 @@ def compose(stages) -> Stage:
 
 
 def run(model: RolloutModel, state: RolloutState, stages=None) -> RolloutState:
-    """The plain rollout: the ``stages`` (default: every stage still to run on ``state``,
-    ``remaining``) applied in order, as one traced function."""
-    for stage in remaining(state) if stages is None else stages:
+    """The plain rollout: the ``stages`` (default: every stage of the model still to run on
+    ``state``, ``remaining(state, active(model))``) applied in order, as one traced function."""
+    for stage in remaining(state, active(model)) if stages is None else stages:
         state = stage.fn(model, state)
     return state
 
@@ -224,7 +300,7 @@ def rollout(tables: Tables, samples: MotionSamples, tf, dwell, grid: Grid, robot
     pass of the plain linearized model. The dwell keeps the linear equations."""
     model = RolloutModel(robot=robot, tf=tf, dwell=dwell, grid=grid, second_order=robot is not None)
     state = RolloutState(tables=tables, samples=samples)
-    return run(model, state, remaining(state, between(last="last pass"))).series
+    return run(model, state, remaining(state, active(model, between(last="last pass")))).series
 
 
 def design_rollout(robot: Robot, cycle: Cycle, x: Design, tf, dwell, grid: Grid, *, blend: str = "lame",

@@ -31,7 +31,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxflex.linearized import FastCoeffs, SlowCoeffs, Tables, interpolate
-from jaxflex.profiles import Profile, profile_eval
+from jaxflex.rigid import rigid_torques
+from jaxflex.robot import Robot
 from jaxflex.servo import Servo
 from jaxflex.servo_linearized import ServoCoeffs, servo_remainder
 from jaxflex.simulate import (Grid, MotionSamples, Series, jump_nodes, per_interval, remainder_stencil,
@@ -44,16 +45,10 @@ TAYLOR = 18         # terms of the small step's matrix functions (|A h / NODES| 
 
 class Schedule(NamedTuple):
     """Per fine step of the motion (N) then of the dwell (Nd): ``has`` whether a sample falls in it
-    (1.0 or 0.0), ``theta`` its fraction of the step in [0, 1), and the reference's path motion at
-    that sample, s [m], ds [m/s], dds [m/s^2] (for the rigid feedforward); ``tau_ff`` (N + Nd, 2)
-    [N m] the feedforward at the sample when it is given (flexible, none), else None."""
+    (1.0 or 0.0) and ``theta`` its fraction of the step in [0, 1)."""
 
     has: jax.Array
     theta: jax.Array
-    s: jax.Array
-    ds: jax.Array
-    dds: jax.Array
-    tau_ff: jax.Array | None = None
 
 
 def sample_positions(t0, h, count, period):
@@ -65,21 +60,52 @@ def sample_positions(t0, h, count, period):
     ts = k * period
     has = ts < t + h - eps * period
     theta = jnp.clip((ts - t) / h, 0.0, 1.0 - 1e-12)
-    return has.astype(float), jnp.where(has, theta, 0.0), ts
+    return has.astype(float), jnp.where(has, theta, 0.0)
 
 
-def servo_schedule(length, profile: Profile, tf, dwell, grid: Grid, period) -> Schedule:
-    """The ``Schedule`` of a law ``profile`` over a path of ``length`` [m]: motion over [0, tf] [s] on
-    the grid's steps, then its dwell steps; samples every ``period`` [s] from t = 0."""
+def servo_schedule(tf, dwell, grid: Grid, period) -> Schedule:
+    """The ``Schedule`` of a motion over [0, tf] [s] on the grid's steps, then its dwell [s] steps:
+    samples every ``period`` [s] from t = 0."""
     n, nd = grid.steps, grid.dwell_steps
-    h, hd = tf / n, dwell / nd
-    has_m, th_m, ts_m = sample_positions(0.0, h, n, period)
-    has_d, th_d, _ = sample_positions(tf, hd, nd, period)
-    v = profile_eval(profile, jnp.clip(ts_m / tf, 0.0, 1.0), 1)
-    s = jnp.concatenate([v.s * length, jnp.full(nd, length)])
-    ds = jnp.concatenate([v.ds * length / tf, jnp.zeros(nd)])
-    dds = jnp.concatenate([v.dds * length / tf**2, jnp.zeros(nd)])
-    return Schedule(jnp.concatenate([has_m, has_d]), jnp.concatenate([th_m, th_d]), s, ds, dds)
+    has_m, th_m = sample_positions(0.0, tf / n, n, period)
+    has_d, th_d = sample_positions(tf, dwell / nd, nd, period)
+    return Schedule(jnp.concatenate([has_m, has_d]), jnp.concatenate([th_m, th_d]))
+
+
+def rigid_feedforward(controller: Robot, tables: Tables, samples: MotionSamples) -> tuple:
+    """The rigid feedforward [N m]: (N + 1, 2) at the grid's motion nodes, (2,) at rest at the place:
+    the inverse dynamics of the rigid robot ``controller`` (the controller's model, rotor
+    included, ``rigid.rigid_torques``) along the motor motion of the tables' path and law, then at
+    rest at the place."""
+    s = jnp.concatenate([samples.start[0], samples.end[0][-1:]])
+    ds = jnp.concatenate([samples.start[1], samples.end[1][-1:]])
+    dds = jnp.concatenate([samples.start[2], samples.end[2][-1:]])
+    fast = jax.vmap(lambda x: interpolate(tables.fast(), x))(s)
+    qd = fast.qa1 * ds[:, None]
+    qdd = fast.qa2 * ds[:, None] ** 2 + fast.qa1 * dds[:, None]
+    motion = jax.vmap(lambda q, v, a: rigid_torques(controller, q, v, a))(fast.qa, qd, qdd)
+    zero = jnp.zeros(2)
+    rest = rigid_torques(controller, interpolate(tables.fast(), tables.breaks[-1]).qa, zero, zero)
+    return motion, rest
+
+
+def feedforward_torques(kind: str, controller: Robot, tables: Tables, samples: MotionSamples, grid: Grid,
+                        series: Series | None = None) -> jax.Array:
+    """The feedforward (N + 1 + Nd + 1, 2) [N m] at the grid's motion nodes then its dwell nodes, of
+    the kind ``kind`` (``servo.FEEDFORWARDS``): "none" zeros; "rigid" the inverse dynamics of the
+    rigid robot ``controller`` (``rigid_feedforward``); "flexible" the perfect controller's torque
+    of the controller's model, its prescribed rollout's ``series.tau`` and ``tau_dwell``. The closed
+    loop reads it at its samples by linear interpolation in the step."""
+    if kind == "none":
+        return jnp.zeros((grid.steps + grid.dwell_steps + 2, 2))
+    if kind == "rigid":
+        motion, rest = rigid_feedforward(controller, tables, samples)
+        return jnp.concatenate([motion, jnp.broadcast_to(rest, (grid.dwell_steps + 1, 2))])
+    if kind == "flexible":
+        if series is None:
+            raise ValueError("the flexible feedforward needs the prescribed rollout's series")
+        return jnp.concatenate([series.tau, series.tau_dwell])
+    raise ValueError(f"unknown feedforward {kind!r}")
 
 
 def check_schedule(grid: Grid, tf: float, dwell: float, rate: float) -> None:
@@ -307,12 +333,13 @@ def _steps(maps: _Maps, f_start, f_end, schedule_part, ff, nc):
     return jax.tree_util.tree_map(lambda a: a.reshape((nc, -1) + a.shape[1:]), st)
 
 
-def closed_loop(tables: Tables, servo_tables: Tables, samples: MotionSamples, schedule: Schedule, tf, dwell,
-                grid: Grid, servo: Servo, robot=None) -> Series:
+def closed_loop(tables: Tables, servo_tables: Tables, samples: MotionSamples, schedule: Schedule, feedforward,
+                tf, dwell, grid: Grid, servo: Servo, robot=None) -> Series:
     """One rollout under the servo (module docstring): motion over [0, tf] [s], then a dwell [s] with
     the reference at the place pose. ``tables``, ``servo_tables``: the path's coefficient tables
     (``linearized``, ``servo_linearized``) of the robot with the servo's rotor; ``schedule``: the
-    samples' positions and the reference at them (``servo_schedule``); with ``robot``, the full
+    samples' positions (``servo_schedule``); ``feedforward`` (N + 1 + Nd + 1, 2) [N m]: the
+    feedforward torque at the motion's and the dwell's nodes (``feedforward_torques``); with ``robot``, the full
     model's second-order remainder along the first pass. ``tau`` of the series is the motors'
     applied torque; ``e_static`` the static error at the closed loop's equilibrium at the place."""
     nc, m, n_steps, nd = grid.coarse, grid.fine, grid.steps, grid.dwell_steps
@@ -327,20 +354,18 @@ def closed_loop(tables: Tables, servo_tables: Tables, samples: MotionSamples, sc
     sc_start, sc_end = (jax.tree_util.tree_map(lambda a: a[sl], sc) for sl in (slice(None, -1), slice(1, None)))
     f_start, _ = _forcing(fast_start, *samples.start[1:])
     f_end, _ = _forcing(fast_end, *samples.end[1:])
-    # the feedforward at the samples
-    if schedule.tau_ff is not None:
-        ff = schedule.tau_ff
-    else:
-        ff_fast = jax.vmap(lambda x: interpolate(tables.fast(), x))(schedule.s)
-        ff = _forcing(ff_fast, schedule.ds, schedule.dds)[1]
-    ff_m, ff_d = ff[:n_steps], ff[n_steps:]
+    # the feedforward at the samples: linear in the step between its nodes
+    ff_nodes_m, ff_nodes_d = feedforward[:n_steps + 1], feedforward[n_steps + 1:]
+    at_samples = lambda f, th: f[:-1] * (1.0 - th)[:, None] + f[1:] * th[:, None]
+    ff_m = at_samples(ff_nodes_m, schedule.theta[:n_steps])
+    ff_d = at_samples(ff_nodes_d, schedule.theta[n_steps:])
     sched_m = (schedule.has[:n_steps], schedule.theta[:n_steps])
     sched_d = (schedule.has[n_steps:], schedule.theta[n_steps:])
     # start: the closed loop's equilibrium at the pick pose, with the feedforward of the first sample
     m0, k0, c0, force0, _, _ = _rest(tables, servo_tables, tables.breaks[0])
-    z0, _ = _equilibrium(k0, force0, servo, ff_m[0])
+    z0, _ = _equilibrium(k0, force0, servo, ff_nodes_m[0])
     n = z0.shape[0]
-    u0 = jnp.clip(ff_m[0] - servo.kp * z0[:2], -servo.torque_limit, servo.torque_limit)
+    u0 = jnp.clip(ff_nodes_m[0] - servo.kp * z0[:2], -servo.torque_limit, servo.torque_limit)
     start = Carry(jnp.concatenate([z0, jnp.zeros(n)]), u0, u0, jnp.zeros(2))
 
     def accelerations(xs, us, forces):
@@ -418,7 +443,7 @@ def closed_loop(tables: Tables, servo_tables: Tables, samples: MotionSamples, sc
     yd = _outputs(xd[:, :n], xd[:, n:], zddd, over(rest_c.fast()), over(rest_sc), zero, zero, ud)
 
     # ---- the closed loop's equilibrium at the place, the energy about it, the static error
-    z_star, k_cl = _equilibrium(k_p, force_p, servo, ff_d[-1])
+    z_star, k_cl = _equilibrium(k_p, force_p, servo, ff_nodes_d[-1])
     e_static = rest_sc.jxa @ z_star[:2] + rest_c.jx @ z_star[2:]
     ksym = 0.5 * (k_cl + k_cl.T)
 

@@ -52,11 +52,11 @@ from .gradient import check_build
 from .objective import DesignObjective, combine_scaled
 
 
-def groups() -> tuple[rl.Stage, ...]:
-    """The stages of a design's rollout as the staged gradient runs them: each stage a program of
-    its own, but the last (the metrics), which runs with the one before it, so that the series is
-    never stored between programs."""
-    stages = rl.between("path and tables")
+def groups(servo: bool = False) -> tuple[rl.Stage, ...]:
+    """The stages of a design's rollout (under a servo with ``servo``) as the staged gradient runs
+    them: each stage a program of its own, but the last (the metrics), which runs with the one
+    before it, so that the series is never stored between programs."""
+    stages = tuple(s for s in rl.STAGES if s.runs_with(servo))
     return stages[:-2] + (rl.compose(stages[-2:]),)
 
 

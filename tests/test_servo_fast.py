@@ -14,7 +14,7 @@ from jaxflex.model_sets import model_set
 from jaxflex.path import make_path
 from jaxflex.profiles import make_profile
 from jaxflex.robot import cycle_preset, robot_preset
-from jaxflex.servo_simulate import NODES, _maps, closed_loop, servo_grid
+from jaxflex.servo_simulate import NODES, _maps, closed_loop, feedforward_torques, servo_grid
 from jaxflex.simulate import Grid
 from jaxflex.sweep import default_grid
 from jaxflex.tables import path_tables, servo_path_tables
@@ -71,9 +71,8 @@ def test_the_fast_model_under_the_servo_agrees_with_the_full_model():
     r = sv.with_rotor(robot, s)
     law = make_profile("poly7")
     full = {k: float(v) for k, v in metrics(closed_loop_rollout(robot, PATH, law, tf, dwell, s, progress=False)).items()}
-    grid = servo_grid(default_grid(r, [tf], dwell), tf, dwell, float(s.rate))
-    fast = metrics(closed_loop(path_tables(r, PATH), servo_path_tables(r, PATH), sample_motion(PATH.length, law, tf, grid),
-                               sample_schedule(PATH.length, law, tf, dwell, grid, s.rate), tf, dwell, grid, s, r))
+    fast = LawEvaluator(model_set(robot, [2.0]), PATH, tf, dwell, default_grid(r, [tf], dwell), servo=s)(law)
+    fast = {k: v[0] for k, v in fast.items()}
     for k in ("dwell_residual_mm", "max_deflection_mm", "max_torque_nm", "residual_energy", "residual_pos_mm"):
         assert abs(float(fast[k]) / full[k] - 1) < 5e-3, (k, float(fast[k]), full[k])
 
@@ -95,11 +94,13 @@ def test_a_fast_sampled_pd_of_growing_bandwidth_tends_to_the_prescribed_motion()
     e_ref = np.concatenate([np.asarray(prescribed.e[0]), np.asarray(prescribed.e_dwell[0])])
     tables, servo_tables = path_tables(r, PATH), servo_path_tables(r, PATH)
     samples = sample_motion(PATH.length, law, tf, grid)
-    schedule = sample_schedule(PATH.length, law, tf, dwell, grid, rate)
+    schedule = sample_schedule(tf, dwell, grid, rate)
+    feedforward = feedforward_torques("rigid", r, tables, samples, grid)
 
     @jax.jit
     def error(s):
-        series = closed_loop(tables, servo_tables, samples, schedule, tf, dwell, grid, s, sv.with_rotor(robot, s))
+        series = closed_loop(tables, servo_tables, samples, schedule, feedforward, tf, dwell, grid, s,
+                             sv.with_rotor(robot, s))
         return jnp.concatenate([series.e, series.e_dwell])
 
     gaps = []
