@@ -23,6 +23,30 @@ def _add_common(p, preset=True):
     p.add_argument("--json", metavar="PATH", help="also write the results as JSON to PATH")
 
 
+def _add_servo(p):
+    """The servo loop's flags (docs/conventions.md#servo)."""
+    g = p.add_argument_group("servo loop", "drive the motors with a sampled PD servo instead of prescribing them "
+                                           "(the paper's perfect controller); docs/conventions.md#servo")
+    g.add_argument("--servo", type=float, metavar="FC",
+                   help="closed-loop bandwidth fc [Hz] of the default gain rule (Kp = J (2 pi fc)^2, "
+                        "Kd = 1.4 J (2 pi fc)); omitted: perfect controller")
+    g.add_argument("--servo-rate", type=float, default=8000.0, metavar="HZ",
+                   help="servo sample rate [Hz] (default: %(default)s)")
+    g.add_argument("--rotor-inertia", type=float, default=0.01, metavar="J",
+                   help="rotor inertia of each motor [kg m^2] (default: %(default)s)")
+    g.add_argument("--feedforward", default="rigid", choices=("none", "rigid", "flexible"),
+                   help="feedforward torque: none, rigid inverse dynamics, or the flexible model's "
+                        "(default: %(default)s)")
+
+
+def servo_options(args) -> dict | None:
+    """The servo flags as keyword arguments (fc, rate, rotor_inertia, feedforward); None without --servo."""
+    if getattr(args, "servo", None) is None:
+        return None
+    return {"fc": args.servo, "rate": args.servo_rate, "rotor_inertia": args.rotor_inertia,
+            "feedforward": args.feedforward}
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``jaxflex`` argument parser (one subparser per command)."""
     parser = argparse.ArgumentParser(
@@ -63,6 +87,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="integration step [s] (default: 1e-4, converged; see REPORT.md)")
     p.add_argument("--dwell", type=float, default=0.1,
                    help="dwell after the motion, motors holding the place pose [s] (default: %(default)s)")
+    _add_servo(p)
 
     p = sub.add_parser("optimize", help="optimize the trajectory against the paper and industrial baselines",
                        description="Gradient-based optimization (reverse mode through the table build and "
@@ -200,7 +225,8 @@ def main(argv=None) -> int:
         elif args.command == "sweep":
             from jaxflex.experiments import sweep
 
-            sweep.run(args.preset, args.payload, args.tf, args.dt, args.dwell, json_path=args.json)
+            sweep.run(args.preset, args.payload, args.tf, args.dt, args.dwell, json_path=args.json,
+                      servo=servo_options(args))
         elif args.command == "optimize":
             from jaxflex.experiments import optimize
 

@@ -1,52 +1,15 @@
-"""Atomic output helpers and plain-text tables shared by the experiments."""
+"""Output helpers and plain-text tables shared by the experiments (the atomic writers live in
+``jaxflex.files``)."""
 from __future__ import annotations
 
-import contextlib
 import json
 import math
-import os
 import platform
-import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 
-
-def _default(o):
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if hasattr(o, "tolist"):
-        return o.tolist()
-    raise TypeError(f"not JSON serializable: {type(o)}")
-
-
-@contextlib.contextmanager
-def atomic_path(path):
-    """Yield a temporary path next to ``path``; move it into place only if the block succeeds."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix or ".tmp", dir=path.parent)
-    os.close(fd)
-    try:
-        yield Path(tmp)
-        os.replace(tmp, path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-
-
-def write_text(path, text: str) -> None:
-    """Write text atomically."""
-    with atomic_path(path) as tmp:
-        tmp.write_text(text)
-
-
-def write_json(path, data) -> None:
-    """Write JSON atomically (numpy scalars/arrays converted)."""
-    write_text(path, json.dumps(data, indent=2, default=_default) + "\n")
+from jaxflex.files import atomic_path, write_json, write_text  # noqa: F401  (the experiments' writers)
 
 
 def resumable(path, key: dict, compute, label: str = ""):

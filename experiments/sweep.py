@@ -5,6 +5,7 @@ import time
 
 from jaxflex.metrics import METRICS, UNITS
 from jaxflex.robot import cycle_preset, robot_preset
+from jaxflex.servo import cycle_servo, record
 from jaxflex.sweep import Case, SweepConfig, results_table, run_sweep
 
 from .io import fmt, provenance, table, write_json
@@ -15,18 +16,26 @@ SHORT = {"max_torque_nm": "torque", "rms_acc_error": "rms e''", "max_deflection_
 
 
 def compute(preset: str = "default", payload: float = 6.0, tf: float = 0.43, dt: float | None = None,
-            dwell: float = 0.1, repeats: int = 3) -> dict:
-    """Simulate every combination; returns the sweep record (docs/conventions.md#file-formats)."""
+            dwell: float = 0.1, repeats: int = 3, servo: dict | None = None) -> dict:
+    """Simulate every combination; returns the sweep record (docs/conventions.md#file-formats).
+    ``servo``: the motors driven by a servo loop, keyword arguments of ``jaxflex.servo.cycle_servo``
+    (fc [Hz], rate [Hz], rotor_inertia [kg m^2], feedforward) for the payload's robot; None: the
+    perfect controller."""
     started = time.time()
     robot, cycle = robot_preset(preset), cycle_preset(preset)
+    controller = None
+    if servo is not None:
+        options = dict(servo)
+        controller = cycle_servo(robot.replace(payload=payload), cycle, options.pop("fc"), **options)
     res = run_sweep(robot, cycle, [Case(payload, tf)],
-                    SweepConfig(dwell=dwell, dt=dt, repeats=repeats, progress=True))
+                    SweepConfig(dwell=dwell, dt=dt, repeats=repeats, progress=True, servo=controller))
     grid = res.grid
     return {"payload": payload, "tf": tf, "dt": tf / grid.steps, "dwell": dwell, "preset": preset,
+            "servo": None if controller is None else record(controller),
             "results": results_table(res, 0),
             "timing": {"compile_s": res.compile_s, "run_s": res.run_s},
             "grid": grid._asdict(), "provenance": provenance(
-                {"preset": preset, "payload": payload, "tf": tf, "dt": dt, "dwell": dwell}, started)}
+                {"preset": preset, "payload": payload, "tf": tf, "dt": dt, "dwell": dwell, "servo": servo}, started)}
 
 
 def text(rec: dict) -> str:
@@ -35,15 +44,20 @@ def text(rec: dict) -> str:
     head = ["blend", "profile"] + [f"{SHORT.get(m, m)} [{UNITS[m]}]" for m in METRICS]
     rows = [[r["blend"], r["profile"]] + [fmt(r[m], 4) for m in METRICS] for r in rec["results"]]
     t = rec["timing"]
+    sv = rec.get("servo")
+    control = "perfect controller (motor angles prescribed)" if sv is None else (
+        f"servo fc {sv['fc']:g} Hz at {sv['rate']:g} Hz, rotor {sv['rotor_inertia']:g} kg m^2, "
+        f"{sv['feedforward']} feedforward, Kp {sv['kp'][0]:.4g} N m/rad, Kd {sv['kd'][0]:.4g} N m s/rad")
     return (f"Sweep: payload {rec['payload']:g} kg, tf {rec['tf']:g} s, dt {rec['dt']:.3g} s, dwell "
-            f"{rec['dwell']:g} s ({rec['preset']} preset)\n\n" + table(head, rows)
+            f"{rec['dwell']:g} s ({rec['preset']} preset), {control}\n\n" + table(head, rows)
             + f"\n\ncompile {t['compile_s']:.1f} s, run {t['run_s'] * 1e3:.0f} ms (median)")
 
 
-def run(preset="default", payload=6.0, tf=0.43, dt=None, dwell=0.1, json_path=None) -> dict:
+def run(preset="default", payload=6.0, tf=0.43, dt=None, dwell=0.1, json_path=None, servo=None) -> dict:
     """``jaxflex sweep``: the 12 combinations for ``payload`` [kg], ``tf`` [s], optional ``dt`` [s] and
-    ``dwell`` [s]; prints the table and writes the JSON."""
-    rec = compute(preset, payload, tf, dt, dwell)
+    ``dwell`` [s], under the perfect controller or the ``servo`` (see ``compute``); prints the table
+    and writes the JSON."""
+    rec = compute(preset, payload, tf, dt, dwell, servo=servo)
     if json_path:                  # the record first: a display problem must not lose the results
         write_json(json_path, rec)
     print(text(rec))

@@ -37,7 +37,7 @@ from jaxflex.profiles import Profile
 from jaxflex.robot import Robot
 from jaxflex.rollout import RolloutModel, RolloutState
 from jaxflex.servo import check_stable, with_rotor
-from jaxflex.servo_simulate import Schedule, servo_grid, servo_schedule
+from jaxflex.servo_simulate import Schedule, feedforward_torques, servo_grid, servo_schedule
 from jaxflex.simulate import Grid, MotionSamples, Series, motion_samples
 from jaxflex.tables import path_tables, servo_path_tables
 
@@ -112,9 +112,10 @@ class Job(NamedTuple):
 
 def run_many(jobs: Sequence[Job], grid: Grid, second_order: bool = True) -> Series:
     """Rollouts of the jobs (``Job``), stacked along a leading axis (run
-    side by side on the host's cores, ``jaxflex.runtime.threads``)."""
+    side by side on the host's cores, ``jaxflex.runtime.threads``; one after another under a servo:
+    its closed-loop programs have hung when XLA:CPU ran two of them from two threads)."""
     return trees.stack(host_map(lambda job: run(*job[:5], grid=grid, second_order=second_order, servo=job.servo),
-                                jobs))
+                                jobs, parallel=all(job.servo is None for job in jobs)))
 
 
 @jax.jit
@@ -235,7 +236,7 @@ class LawEvaluator:
             raise ValueError("one feedforward kind for every model of an evaluator")
         tables = path_tables(self.controller, self.path)
         series = run(tables, samples, tf, self.dwell, self.controller, self.grid)
-        return jnp.concatenate([series.tau, series.tau_dwell])
+        return feedforward_torques("flexible", self.controller, tables, samples, self.grid, series)
 
     def _jobs(self, built: list, indices, samples: MotionSamples, tf: float, feedforward) -> list[Job]:
         if self._servos is None:
@@ -257,7 +258,7 @@ class LawEvaluator:
             def one(i):
                 job = self._jobs([self._build(self._robots[i])], [i], samples, tf, ff)[0]
                 return run(*job[:5], grid=self.grid, servo=job.servo)
-            return trees.stack(host_map(one, range(len(self._robots))))
+            return trees.stack(host_map(one, range(len(self._robots)), parallel=self._servos is None))
         return run_many(self._jobs(self._tables, range(len(self._robots)), samples, tf, ff), self.grid)
 
     def __call__(self, law, tf: float | None = None) -> dict:

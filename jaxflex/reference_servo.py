@@ -229,7 +229,8 @@ def closed_loop_rollout(robot: Robot, path: Path, profile: Profile, tf: float, d
     sample period is cut into the fewest substeps of at most dt [s]. Returns a ``Series`` with
     outputs at every substep (``tau``: the applied torque), so ``jaxflex.metrics`` applies. A
     "flexible" feedforward is the perfect controller's torque of the same robot
-    (``reference.reference_rollout`` at the same substep)."""
+    (``reference.reference_rollout`` at the same substep) over the motion, held at its value at tf
+    through the dwell."""
     from jaxflex.reference import reference_rollout
 
     servo = servo.checked()
@@ -243,7 +244,8 @@ def closed_loop_rollout(robot: Robot, path: Path, profile: Profile, tf: float, d
     flexible_tau = None
     if servo.feedforward == "flexible":
         ref = reference_rollout(r, path, profile, tf, dwell, dt=h, progress=progress)
-        tau = np.concatenate([np.asarray(ref.tau)[:-1], np.asarray(ref.tau_dwell)[:-1]])
+        tau = np.asarray(ref.tau)[:-1]     # then held at its value at tf through the dwell
+        tau = np.concatenate([tau, np.broadcast_to(np.asarray(ref.tau)[-1], (k_dwell * substeps, 2))])
         flexible_tau = tau[::substeps][:samples]
         if flexible_tau.shape[0] != samples:
             raise ValueError("the flexible feedforward's samples do not match the servo's")

@@ -36,7 +36,7 @@ import numpy as np
 
 from jaxflex import checks
 from jaxflex import model as mdl
-from jaxflex.path import Path, path_frame
+from jaxflex.path import Path, make_path, path_frame
 from jaxflex.rigid import rigid_torques
 from jaxflex.robot import Robot, igm
 
@@ -132,6 +132,27 @@ def servo_from_bandwidth(robot: Robot, path: Path, fc: float, *, rate: float = 8
     return Servo(kp=kp, kd=kd, ki=jnp.full(2, float(ki)), rate=jnp.asarray(float(rate)),
                  rotor_inertia=jnp.asarray(rotor), torque_limit=jnp.asarray(float(torque_limit)),
                  fc=jnp.asarray(fc), feedforward=feedforward, delay=bool(delay)).checked()
+
+
+def cycle_servo(robot: Robot, cycle, fc: float, **kwargs) -> Servo:
+    """``servo_from_bandwidth`` on the cycle's paper path (Lame blends, d = e = 25 mm, n = 3): the one
+    controller every trajectory of the cycle is judged with (the cycle is symmetric, so every blend's
+    path has the same midpoint and the same gains). kwargs: rate, rotor_inertia, feedforward, ..."""
+    return servo_from_bandwidth(robot, make_path(cycle, "lame", 0.025), fc, **kwargs)
+
+
+UNITS = {"kp": "N m/rad", "kd": "N m s/rad", "ki": "N m/(rad s)", "rate": "Hz", "rotor_inertia": "kg m^2",
+         "torque_limit": "N m", "fc": "Hz"}
+
+
+def record(servo: Servo) -> dict:
+    """The servo as a JSON-ready dict: its gains per motor, rate, rotor inertia, torque limit (None:
+    none), bandwidth fc (None: gains given), feedforward kind, delay, and the units."""
+    s = servo.checked()
+    num = lambda v: None if not np.isfinite(float(v)) else float(v)
+    return {"kp": np.asarray(s.kp).tolist(), "kd": np.asarray(s.kd).tolist(), "ki": np.asarray(s.ki).tolist(),
+            "rate": float(s.rate), "rotor_inertia": float(s.rotor_inertia), "torque_limit": num(s.torque_limit),
+            "fc": num(s.fc), "feedforward": s.feedforward, "delay": bool(s.delay), "units": dict(UNITS)}
 
 
 def rest_linearization(robot: Robot, qa) -> tuple:

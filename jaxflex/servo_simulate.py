@@ -94,8 +94,11 @@ def feedforward_torques(kind: str, controller: Robot, tables: Tables, samples: M
     """The feedforward (N + 1 + Nd + 1, 2) [N m] at the grid's motion nodes then its dwell nodes, of
     the kind ``kind`` (``servo.FEEDFORWARDS``): "none" zeros; "rigid" the inverse dynamics of the
     rigid robot ``controller`` (``rigid_feedforward``); "flexible" the perfect controller's torque
-    of the controller's model, its prescribed rollout's ``series.tau`` and ``tau_dwell``. The closed
-    loop reads it at its samples by linear interpolation in the step."""
+    of the controller's model over the motion (its prescribed rollout's ``series.tau``). In the dwell
+    every kind holds its value at tf, as a controller holds the last row of a trajectory it was
+    given (for "rigid" the rigid static torque at the place; for "flexible" the perfect controller's
+    torque at tf: the controller is not told the dwell's vibration). The closed loop reads it at its
+    samples by linear interpolation in the step."""
     if kind == "none":
         return jnp.zeros((grid.steps + grid.dwell_steps + 2, 2))
     if kind == "rigid":
@@ -104,7 +107,7 @@ def feedforward_torques(kind: str, controller: Robot, tables: Tables, samples: M
     if kind == "flexible":
         if series is None:
             raise ValueError("the flexible feedforward needs the prescribed rollout's series")
-        return jnp.concatenate([series.tau, series.tau_dwell])
+        return jnp.concatenate([series.tau, jnp.broadcast_to(series.tau[-1], (grid.dwell_steps + 1, 2))])
     raise ValueError(f"unknown feedforward {kind!r}")
 
 

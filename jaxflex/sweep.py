@@ -26,7 +26,10 @@ from jaxflex.profiles import PROFILES, make_profile
 from jaxflex.progress import stage
 from jaxflex.robot import Robot, check_cycle_reachable
 from jaxflex.engine import sample_motion
+from jaxflex.servo import Servo, check_stable, with_rotor
+from jaxflex.servo_simulate import servo_grid
 from jaxflex.simulate import Grid, check_grid
+from jaxflex.tables import servo_path_tables
 
 
 class Case(NamedTuple):
@@ -81,10 +84,11 @@ def _coeffs(robot, payloads, qa, qa1, qa2):
     return jax.tree_util.tree_map(lambda v: v.reshape(v.shape[:1] + shape + v.shape[2:]), values)
 
 
-def _sweep_series(values, breaks, lengths, tfs, dwell, robots, profiles, grid, second_order):
+def _sweep_series(values, breaks, lengths, tfs, dwell, robots, profiles, grid, second_order, servo_inputs=None):
     """Every rollout (blend x law x case) through the evaluation engine (``jaxflex.engine``: one
     compiled program for every run, the runs side by side on the host's cores, ``engine.run_many``),
-    series stacked with leading axes (B, P, C); tables (C, B, ...)."""
+    series stacked with leading axes (B, P, C); tables (C, B, ...). ``servo_inputs``: under a servo,
+    (servo, servo tables [blend][case], schedules [case])."""
     laws = [make_profile(name) for name in profiles]
     # per-run tables and lengths sliced on the host (eager jax indexing would dispatch a small
     # program per leaf and run), then passed as device arrays like every other caller's tables
@@ -93,7 +97,12 @@ def _sweep_series(values, breaks, lengths, tfs, dwell, robots, profiles, grid, s
     for i in range(breaks.shape[0]):
         tables = [Tables(values=jax.tree_util.tree_map(lambda v: jnp.asarray(v[c, i]), values),
                          breaks=jnp.asarray(breaks[i])) for c in range(len(tfs))]
-        jobs += [engine.Job(tables[c], sample_motion(lengths[i], law, tfs[c], grid), tfs[c], dwell, robots[c])
+        extra = [None] * len(tfs)
+        if servo_inputs is not None:
+            servo, servo_tables, schedules = servo_inputs
+            extra = [engine.ServoJob(servo, servo_tables[i][c], schedules[c]) for c in range(len(tfs))]
+        jobs += [engine.Job(tables[c], sample_motion(lengths[i], law, tfs[c], grid), tfs[c], dwell, robots[c],
+                            extra[c])
                  for law in laws for c in range(len(tfs))]
     series = engine.run_many(jobs, grid, second_order)
     lead = (breaks.shape[0], len(laws), len(tfs))
@@ -121,7 +130,9 @@ class SweepConfig:
     of docs/conventions.md#fast-model); False: the linearized model. with_series: keep every rollout's
     ``Series``. repeats: sweeps timed after the first (``SweepResult.run_s`` is their median);
     timed=False: none (the results only). progress: report the stages on stderr
-    (``jaxflex.progress``)."""
+    (``jaxflex.progress``). servo: the motors driven by this servo loop (``jaxflex.servo.Servo``, its
+    rotor on every case's robot, its feedforward computed for each case's robot; the grid refined to
+    its period; docs/conventions.md#servo); None: the perfect controller (the paper's)."""
 
     blends: tuple = BLENDS
     profiles: tuple = PROFILES
@@ -136,6 +147,7 @@ class SweepConfig:
     repeats: int = 1
     timed: bool = True
     progress: bool = False
+    servo: Servo | None = None
 
     def checked(self, cycle) -> "SweepConfig":
         """The configuration with tuples, floats and e filled in; ValueError naming a bad field
@@ -153,7 +165,13 @@ class SweepConfig:
             check_path_args(cycle, b, self.d, e, self.n, self.d, e, self.n)
         if self.grid is not None:
             check_grid(self.grid)
-        return dataclasses.replace(self, blends=blends, profiles=profiles, e=e, dwell=dwell, dt=dt, repeats=repeats)
+        servo = None
+        if self.servo is not None:
+            if not isinstance(self.servo, Servo):
+                raise TypeError(f"servo must be a jaxflex.servo.Servo, got {type(self.servo).__name__}")
+            servo = self.servo.checked()
+        return dataclasses.replace(self, blends=blends, profiles=profiles, e=e, dwell=dwell, dt=dt, repeats=repeats,
+                                   servo=servo)
 
 
 def sweep_tables(robot: Robot, cycle, payloads: Sequence[float], blend: str,
@@ -216,7 +234,23 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES,
     c = config.checked(cycle)
     blends, profiles, dwell, repeats, timed, progress = c.blends, c.profiles, c.dwell, c.repeats, c.timed, c.progress
     check_cycle_reachable(robot, cycle)
+    if c.servo is not None:
+        robot = with_rotor(robot, c.servo)
     grid = c.grid or default_grid(robot, [case.tf for case in cases], dwell, c.dt)
+    servo_inputs = None
+    if c.servo is not None:
+        grid = servo_grid(grid, max(case.tf for case in cases), dwell, float(c.servo.rate))
+        paths = [make_path(cycle, b, c.d, c.e, c.n) for b in blends]
+        case_robots = [robot.replace(payload=case.payload) for case in cases]
+        with stage("servo loop", enabled=progress) as servo_bar, \
+                servo_bar.waiting("stability along the paths and the servo tables (compiling unless cached)",
+                                  key="sweep-servo"):
+            for path in paths:
+                for r, case in zip(case_robots, cases):
+                    check_stable(r, c.servo, path, case.tf + dwell)
+            servo_tables = [[servo_path_tables(r, path) for r in case_robots] for path in paths]
+        schedules = [engine.sample_schedule(case.tf, dwell, grid, c.servo.rate) for case in cases]
+        servo_inputs = (c.servo, servo_tables, schedules)
     payloads = jnp.asarray([case.payload for case in cases])
     d_, e_, n_ = (jnp.asarray(v, dtype=float) for v in (c.d, c.e, c.n))
     runs_total = len(blends) * len(profiles) * len(cases)
@@ -231,7 +265,8 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES,
     tf_list = [case.tf for case in cases]
 
     def sweep():
-        series = _sweep_series(values, breaks, lengths, tf_list, dwell, robots, profiles, grid, c.second_order)
+        series = _sweep_series(values, breaks, lengths, tf_list, dwell, robots, profiles, grid, c.second_order,
+                               servo_inputs)
         return engine.metrics_of(series), series
 
     t0 = time.perf_counter()

@@ -39,13 +39,14 @@ def threads() -> int:
     return max(1, min(os.cpu_count() or 1, MAX_THREADS))
 
 
-def host_map(fn: Callable, items: Sequence) -> list:
+def host_map(fn: Callable, items: Sequence, parallel: bool = True) -> list:
     """[fn(x) for x in items], each result ready (``jax.block_until_ready``), computed by up to
-    ``threads()`` threads. The first item runs alone, so that a program compiles once, not once per
-    thread. Exceptions propagate as in the sequential loop (the first failing item's)."""
+    ``threads()`` threads (one with ``parallel=False``). The first item runs alone, so that a
+    program compiles once, not once per thread. Exceptions propagate as in the sequential loop (the
+    first failing item's)."""
     items = list(items)
     run = lambda x: jax.block_until_ready(fn(x))
-    n = threads()
+    n = threads() if parallel else 1
     if n == 1 or len(items) < 2:
         return [run(x) for x in items]
     first = run(items[0])
