@@ -4,7 +4,7 @@ compare it with the baselines.
 Thin wrapper around ``jaxflex.optimize.study.optimize_design``: prints the comparison (dwell residual
 on the nominal, perturbed and damped models; peak torque), writes the JSON
 (docs/conventions.md#file-formats), and with ``--out DIR`` the checkpoint (resumable),
-``trajectory.csv`` (t, x, y, q1, q2 at 10 kHz) and figures.
+``trajectory.csv`` with ``controller.json`` (``jaxflex.export``) and figures.
 """
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ import numpy as np
 
 from jaxflex.model_sets import build_model
 from jaxflex.optimize.config import StudyConfig
+from jaxflex.export import DEFAULT_RATE_HZ as CSV_RATE_HZ, write_controller_files
 from jaxflex.optimize.cycle_time import TORQUE_TOL
 from jaxflex.optimize.study import optimize_design
 from jaxflex.optimize.verification import verify as verify_trajectories
@@ -28,9 +29,8 @@ from jaxflex.robot import cycle_preset, igm, robot_preset
 from jaxflex.trajectory import task_from_arc
 from jaxflex.uncertainty import ModelId
 
-from .io import atomic_path, fmt, provenance, save_figure, table, write_json
+from .io import fmt, provenance, save_figure, table, write_json
 
-CSV_RATE_HZ = 10_000
 
 
 def trajectory_rows(robot, path, profile, tf: float, rate: float = CSV_RATE_HZ) -> np.ndarray:
@@ -46,12 +46,6 @@ def _positions(robot, path, profile, eta):
     s = profile_eval(profile, eta).s * path.length
     x = task_from_arc(path, s, jnp.zeros_like(s), jnp.zeros_like(s), jnp.zeros_like(s))[0]
     return x, jax.vmap(lambda p: igm(robot, p))(x)
-
-
-def write_trajectory_csv(path_out, rows: np.ndarray) -> None:
-    """Write (N, 5) rows t [s], x, y [m], q1, q2 [rad] as CSV with a header, atomically."""
-    with atomic_path(path_out) as tmp:
-        np.savetxt(tmp, rows, delimiter=",", header="t,x,y,q1,q2", comments="", fmt="%.12g")
 
 
 def _corners(x) -> list:
@@ -289,10 +283,10 @@ def error_figure(study, out_path: Path, payload_index: int = 0):
 
 
 def compute(preset="default", payloads=(6.0,), tf=0.43, out=None, verify=False, grid=None,
-            config: StudyConfig = StudyConfig()) -> dict:
+            config: StudyConfig = StudyConfig(), export_rate: float = CSV_RATE_HZ) -> dict:
     """Run the study (``optimize_design`` with ``config``) and return its JSON record; with ``out``
-    also write the checkpoint (resumable), ``trajectory.csv``, the figures and ``optimize.json``
-    there."""
+    also write the checkpoint (resumable), ``trajectory.csv`` and ``controller.json``
+    (``jaxflex.export``, at ``export_rate`` [Hz]), the figures and ``optimize.json`` there."""
     started = time.time()
     robot, cycle = robot_preset(preset), cycle_preset(preset)
     ckpt = None
@@ -317,10 +311,9 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, out=None, verify=False, 
     bar.update(note="record")
     if out:
         out = Path(out)
-        rows = trajectory_rows(robot.replace(payload=payloads[0]), study.paths["optimized"],
-                               study.candidates["optimized"].law, tf)
-        write_trajectory_csv(out / "trajectory.csv", rows)
-        bar.update(note="trajectory.csv")
+        write_controller_files(out, robot.replace(payload=payloads[0]), study.paths["optimized"],
+                               study.candidates["optimized"].law, tf, servo=None, rate=export_rate, grid=study.grid)
+        bar.update(note="trajectory.csv, controller.json")
         figure(study, out)
         bar.update(note="design figure")
         error_figure(study, out / "error_series.png")

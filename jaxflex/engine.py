@@ -36,7 +36,7 @@ from jaxflex.path import Path
 from jaxflex.profiles import Profile
 from jaxflex.robot import Robot
 from jaxflex.rollout import RolloutModel, RolloutState
-from jaxflex.servo import check_stable, with_rotor
+from jaxflex.servo import check_stable, feedforward_advance, with_rotor
 from jaxflex.servo_simulate import Schedule, feedforward_torques, servo_grid, servo_schedule
 from jaxflex.simulate import Grid, MotionSamples, Series, motion_samples
 from jaxflex.tables import path_tables, servo_path_tables
@@ -175,10 +175,12 @@ class LawEvaluator:
     fastest servo's period (``servo_simulate.servo_grid``), and every loop is checked for stability
     along the path first (``servo.check_stable``). The feedforward is computed for ``controller``
     (the controller's model, e.g. the nominal robot of a box; None: each model its own): the rigid
-    inverse dynamics, or the flexible one from the controller's perfect-controller rollout."""
+    inverse dynamics, or the flexible one from the controller's perfect-controller rollout, advanced
+    by ``advance`` [s] (None: ``servo.feedforward_advance`` of the first model's servo; give the
+    nominal controller's when the models' rates differ)."""
 
     def __init__(self, models: ModelSet, path: Path, tf: float, dwell: float, grid: Grid, *, keep: bool = True,
-                 servo=None, controller: Robot | None = None):
+                 servo=None, controller: Robot | None = None, advance: float | None = None):
         k = len(models.labels)
         self._robots = models.singles()
         self._servos = None
@@ -193,6 +195,8 @@ class LawEvaluator:
             grid = servo_grid(grid, tf, dwell, max(float(sv.rate) for sv in self._servos))
         self.models, self.path, self.tf, self.dwell, self.grid = models, path, tf, dwell, grid
         self.controller = controller
+        self.advance = advance if advance is not None or self._servos is None else float(
+            feedforward_advance(self._servos[0]))
         # the tables built and kept per model (the rollouts take them one model at a time), in one
         # copy (they add up over a large set such as the studies' evaluation models, docs/performance.md);
         # the same coefficient program on the same chunks of poses as a stacked build, so the same values.
@@ -236,7 +240,7 @@ class LawEvaluator:
             raise ValueError("one feedforward kind for every model of an evaluator")
         tables = path_tables(self.controller, self.path)
         series = run(tables, samples, tf, self.dwell, self.controller, self.grid)
-        return feedforward_torques("flexible", self.controller, tables, samples, self.grid, series)
+        return feedforward_torques("flexible", self.controller, tables, samples, self.grid, series, self.advance)
 
     def _jobs(self, built: list, indices, samples: MotionSamples, tf: float, feedforward) -> list[Job]:
         if self._servos is None:

@@ -21,7 +21,7 @@ from jaxflex.path import Path
 from jaxflex.profiles import Profile
 from jaxflex.rigid import rigid_torques
 from jaxflex.robot import Robot
-from jaxflex.servo import Servo, record, with_rotor
+from jaxflex.servo import Servo, feedforward_advance, record, with_rotor
 from jaxflex.simulate import Grid
 from jaxflex.tables import path_tables
 from jaxflex.trajectory import trajectory
@@ -48,12 +48,13 @@ def _rigid(robot, q, qd, qdd):
 
 
 def feedforward_at(kind: str, robot: Robot, path: Path, profile: Profile, tf: float, t: np.ndarray,
-                   q=None, qd=None, qdd=None, grid: Grid | None = None) -> np.ndarray:
+                   q=None, qd=None, qdd=None, grid: Grid | None = None, advance: float = 0.0) -> np.ndarray:
     """The feedforward torque (T, 2) [N m] of kind ``kind`` at the instants t [s] of the motion:
     "none" zeros; "rigid" the rigid inverse dynamics of ``robot`` (rotor included) along the motor
     motion q, qd, qdd (T, 2); "flexible" the torque of the robot's perfect-controller rollout (the
-    second-order fast model on ``grid``, default ``sweep.default_grid``) at its nodes, interpolated
-    linearly to t."""
+    second-order fast model on ``grid``, default ``sweep.default_grid``) at t + ``advance`` [s]
+    (``servo.feedforward_advance``: the torque a controller should hold from t), linear between the
+    rollout's nodes and held at its value at tf beyond."""
     if kind == "none":
         return np.zeros((len(t), 2))
     if kind == "rigid":
@@ -64,20 +65,21 @@ def feedforward_at(kind: str, robot: Robot, path: Path, profile: Profile, tf: fl
         grid = grid or default_grid(robot, [tf], 0.01)
         series = run(path_tables(robot, path), sample_motion(path.length, profile, tf, grid), tf, 0.01, robot, grid)
         nodes, tau = np.asarray(series.t), np.asarray(series.tau)
-        return np.column_stack([np.interp(t, nodes, tau[:, i]) for i in range(2)])
+        at = np.clip(np.asarray(t) + advance, 0.0, float(tf))
+        return np.column_stack([np.interp(at, nodes, tau[:, i]) for i in range(2)])
     raise ValueError(f"unknown feedforward {kind!r}; expected one of none, rigid, flexible")
 
 
 def trajectory_table(robot: Robot, path: Path, profile: Profile, tf: float, rate: float = DEFAULT_RATE_HZ,
-                     feedforward: str = "rigid", grid: Grid | None = None) -> np.ndarray:
+                     feedforward: str = "rigid", grid: Grid | None = None, advance: float = 0.0) -> np.ndarray:
     """The (T, 11) rows of ``COLUMNS`` sampled at ``rate`` [Hz] over [0, tf] [s] (``sample_times``):
     t [s], x, y [m] the desired end-effector position, q1, q2 [rad] the rigid-IGM motor angles,
     their rates [rad/s] and accelerations [rad/s^2], and the ``feedforward`` torque [N m] of the
-    robot (its rotor included; ``feedforward_at``)."""
+    robot (its rotor included; ``feedforward_at`` with ``advance`` [s])."""
     t = sample_times(tf, rate)
     tr = trajectory(robot, path, profile, tf, jnp.asarray(t))
     q, qd, qdd = (np.asarray(a) for a in (tr.q, tr.qd, tr.qdd))
-    tau = feedforward_at(feedforward, robot, path, profile, tf, t, q, qd, qdd, grid)
+    tau = feedforward_at(feedforward, robot, path, profile, tf, t, q, qd, qdd, grid, advance)
     return np.column_stack([t, np.asarray(tr.x), q, qd, qdd, tau])
 
 
@@ -106,7 +108,8 @@ def write_controller_files(directory, robot: Robot, path: Path, profile: Profile
     directory = FilePath(directory)
     robot = robot if servo is None else with_rotor(robot, servo)
     kind = "flexible" if servo is None else servo.feedforward
-    rows = trajectory_table(robot, path, profile, tf, rate, kind, grid)
+    advance = 0.0 if servo is None else float(feedforward_advance(servo))
+    rows = trajectory_table(robot, path, profile, tf, rate, kind, grid, advance)
     csv = directory / f"{name}.csv"
     with atomic_path(csv) as tmp:
         np.savetxt(tmp, rows, delimiter=",", header=",".join(COLUMNS), comments="", fmt="%.12g")

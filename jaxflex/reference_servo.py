@@ -27,14 +27,14 @@ import numpy as np
 from jaxflex import checks
 from jaxflex import model as mdl
 from jaxflex.expm import phi_times, squarings_for
-from jaxflex.path import Path
+from jaxflex.path import Path, path_frame
 from jaxflex.profiles import Profile
 from jaxflex.progress import Progress
 from jaxflex.reference import joint_samples, velocity_scaling
 from jaxflex.rigid import rigid_torques
-from jaxflex.robot import Robot
+from jaxflex.robot import Robot, igm
 from jaxflex.runtime import options
-from jaxflex.servo import Servo, with_rotor
+from jaxflex.servo import Servo, feedforward_advance, static_torque, with_rotor
 from jaxflex.simulate import Series, low_mode_acceleration
 
 DEFAULT_DT = 2e-5      # [s] the largest substep (the period is cut into the fewest substeps below it)
@@ -229,7 +229,8 @@ def closed_loop_rollout(robot: Robot, path: Path, profile: Profile, tf: float, d
     sample period is cut into the fewest substeps of at most dt [s]. Returns a ``Series`` with
     outputs at every substep (``tau``: the applied torque), so ``jaxflex.metrics`` applies. A
     "flexible" feedforward is the perfect controller's torque of the same robot
-    (``reference.reference_rollout`` at the same substep) over the motion, held at its value at tf
+    (``reference.reference_rollout`` at the same substep) over the motion, advanced by
+    ``servo.feedforward_advance``, and the static torque at the place (``servo.static_torque``)
     through the dwell."""
     from jaxflex.reference import reference_rollout
 
@@ -244,9 +245,11 @@ def closed_loop_rollout(robot: Robot, path: Path, profile: Profile, tf: float, d
     flexible_tau = None
     if servo.feedforward == "flexible":
         ref = reference_rollout(r, path, profile, tf, dwell, dt=h, progress=progress)
-        tau = np.asarray(ref.tau)[:-1]     # then held at its value at tf through the dwell
-        tau = np.concatenate([tau, np.broadcast_to(np.asarray(ref.tau)[-1], (k_dwell * substeps, 2))])
-        flexible_tau = tau[::substeps][:samples]
+        t_ref, tau_ref = np.asarray(ref.t), np.asarray(ref.tau)
+        at = np.clip(np.arange(k_motion) / rate + float(feedforward_advance(servo)), 0.0, tf)
+        motion = np.column_stack([np.interp(at, t_ref, tau_ref[:, i]) for i in range(2)])
+        place = np.asarray(static_torque(r, igm(r, jnp.asarray(path_frame(path, path.length).pos))))
+        flexible_tau = np.concatenate([motion, np.broadcast_to(place, (k_dwell, 2))])
         if flexible_tau.shape[0] != samples:
             raise ValueError("the flexible feedforward's samples do not match the servo's")
     refs, motions = _references(r, path, profile, tf, rate, samples, substeps, servo.feedforward, flexible_tau)

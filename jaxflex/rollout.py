@@ -48,7 +48,7 @@ from jaxflex.metrics import Terms, terms
 from jaxflex.path import Cycle
 from jaxflex.profiles import shaped
 from jaxflex.robot import Robot
-from jaxflex.servo import Servo
+from jaxflex.servo import Servo, feedforward_advance
 from jaxflex.servo_linearized import build_servo_tables
 from jaxflex.servo_simulate import Schedule, closed_loop, feedforward_torques, servo_schedule
 from jaxflex.simulate import (Grid, MotionSamples, Prepared, Series, Sites, add_remainders, first_pass,
@@ -162,7 +162,7 @@ def feedforward_stage(model: RolloutModel, state: RolloutState) -> RolloutState:
     """The servo's feedforward at the nodes (``servo_simulate.feedforward_torques``) of its kind:
     "rigid" the rigid inverse dynamics of ``model.controller`` (default the robot); "flexible" the
     torque of the robot's perfect-controller rollout (the three passes; for another model's, give
-    the field in the state)."""
+    the field in the state), advanced by ``servo.feedforward_advance``."""
     kind = model.servo.feedforward
     series = None
     if kind == "flexible":
@@ -172,7 +172,7 @@ def feedforward_stage(model: RolloutModel, state: RolloutState) -> RolloutState:
         series = run(prescribed, restrict(state, ("tables", "samples")), between("first pass", "last pass")).series
     controller = model.robot if model.controller is None else model.controller
     return state._replace(feedforward=feedforward_torques(kind, controller, state.tables, state.samples, model.grid,
-                                                          series))
+                                                          series, feedforward_advance(model.servo)))
 
 
 def servo_stage(model: RolloutModel, state: RolloutState) -> RolloutState:

@@ -155,6 +155,26 @@ def record(servo: Servo) -> dict:
             "fc": num(s.fc), "feedforward": s.feedforward, "delay": bool(s.delay), "units": dict(UNITS)}
 
 
+def static_torque(robot: Robot, qa) -> jax.Array:
+    """The motor torques (2,) [N m] that hold the robot at rest at the motor angles qa (2,) [rad]:
+    the static forces (gravity, elasticity) of the full model on the motor coordinates at its
+    static equilibrium with the motors there (``model.static_equilibrium``). The flexible
+    feedforward's value in the dwell (the rigid one's is the rigid robot's, ``rigid.rigid_torques``
+    at rest)."""
+    qe = mdl.static_equilibrium(robot, qa)
+    zero = jnp.zeros(2 + qe.shape[0])
+    return mdl.reduced(robot, qa, qe, zero[:2], zero[2:]).force[:2]
+
+
+def feedforward_advance(servo: Servo) -> jax.Array:
+    """The time advance [s] of the flexible feedforward: half a sample period, one more period with
+    the one-sample delay. The torque held over a period is then the model's torque at the period's
+    middle, within O(T^2) of its mean over the period, instead of its value at the period's start
+    (an O(T) error: the perfect controller's torque holds the links' vibration reaction, which the
+    hold would delay by half a period and feed back into the modes; docs/conventions.md#servo)."""
+    return (0.5 + float(bool(servo.delay))) / servo.rate
+
+
 def rest_linearization(robot: Robot, qa) -> tuple:
     """The robot at rest at the motor angles qa (2,) [rad], linearized about its static equilibrium
     under gravity (q_e*, motors held at qa) in z = [q_a - qa, q_e - q_e*] (2 + ne): (M, C, K) with
@@ -195,9 +215,13 @@ def sampled_loop(robot: Robot, servo: Servo, qa) -> jax.Array:
     return jnp.block([[phi, gamma], [-gain, jnp.zeros((2, 2))]])
 
 
+_sampled_loop = jax.jit(sampled_loop)      # one program per model shape, not eager operations per call
+_pose_at = jax.jit(lambda robot, path, s: igm(robot, path_frame(path, s * path.length).pos))
+
+
 def sampled_radius(robot: Robot, servo: Servo, qa) -> float:
     """The spectral radius of ``sampled_loop`` (> 1: the loop is unstable there)."""
-    return float(np.max(np.abs(np.linalg.eigvals(np.asarray(sampled_loop(robot, servo, qa))))))
+    return float(np.max(np.abs(np.linalg.eigvals(np.asarray(_sampled_loop(robot, servo, jnp.asarray(qa)))))))
 
 
 def check_stable(robot: Robot, servo: Servo, path: Path, duration: float | None = None, points: int = 5,
@@ -211,7 +235,7 @@ def check_stable(robot: Robot, servo: Servo, path: Path, duration: float | None 
     rate = float(servo.rate)
     worst, where = 0.0, 0.0
     for s in np.linspace(0.0, 1.0, points):
-        qa = igm(r, path_frame(path, s * path.length).pos)
+        qa = _pose_at(r, path, jnp.asarray(s))
         radius = sampled_radius(r, servo, qa)
         if radius > worst:
             worst, where = radius, s * float(path.length)

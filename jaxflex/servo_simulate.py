@@ -33,7 +33,7 @@ import numpy as np
 from jaxflex.linearized import FastCoeffs, SlowCoeffs, Tables, interpolate
 from jaxflex.rigid import rigid_torques
 from jaxflex.robot import Robot
-from jaxflex.servo import Servo
+from jaxflex.servo import Servo, static_torque
 from jaxflex.servo_linearized import ServoCoeffs, servo_remainder
 from jaxflex.simulate import (Grid, MotionSamples, Series, jump_nodes, per_interval, remainder_stencil,
                               low_mode_acceleration)
@@ -89,26 +89,38 @@ def rigid_feedforward(controller: Robot, tables: Tables, samples: MotionSamples)
     return motion, rest
 
 
+def flexible_feedforward(controller: Robot, series: Series, place_qa, advance=0.0) -> tuple:
+    """The flexible feedforward [N m]: (N + 1, 2) at the motion's nodes, (2,) at rest at the place.
+    Over the motion, the controller's model's perfect-controller torque ``series.tau`` at the node
+    times advanced by ``advance`` [s] (``servo.feedforward_advance``; linear between nodes, held at
+    its value at tf beyond); at rest, the torque that holds that model at the place motor angles
+    place_qa (2,) [rad] (``servo.static_torque``): the controller is not told the dwell's vibration."""
+    t = series.t
+    at = jnp.clip(t + advance, t[0], t[-1])
+    motion = jnp.stack([jnp.interp(at, t, series.tau[:, i]) for i in range(2)], axis=1)
+    return motion, static_torque(controller, place_qa)
+
+
 def feedforward_torques(kind: str, controller: Robot, tables: Tables, samples: MotionSamples, grid: Grid,
-                        series: Series | None = None) -> jax.Array:
+                        series: Series | None = None, advance=0.0) -> jax.Array:
     """The feedforward (N + 1 + Nd + 1, 2) [N m] at the grid's motion nodes then its dwell nodes, of
     the kind ``kind`` (``servo.FEEDFORWARDS``): "none" zeros; "rigid" the inverse dynamics of the
-    rigid robot ``controller`` (``rigid_feedforward``); "flexible" the perfect controller's torque
-    of the controller's model over the motion (its prescribed rollout's ``series.tau``). In the dwell
-    every kind holds its value at tf, as a controller holds the last row of a trajectory it was
-    given (for "rigid" the rigid static torque at the place; for "flexible" the perfect controller's
-    torque at tf: the controller is not told the dwell's vibration). The closed loop reads it at its
-    samples by linear interpolation in the step."""
+    rigid robot ``controller`` (``rigid_feedforward``); "flexible" from the perfect controller's
+    rollout ``series`` of the controller's model (``flexible_feedforward``, advanced by ``advance``
+    [s]). In the dwell every kind holds the torque that holds its model at rest at the place. The
+    closed loop reads it at its samples by linear interpolation in the step."""
     if kind == "none":
         return jnp.zeros((grid.steps + grid.dwell_steps + 2, 2))
     if kind == "rigid":
         motion, rest = rigid_feedforward(controller, tables, samples)
-        return jnp.concatenate([motion, jnp.broadcast_to(rest, (grid.dwell_steps + 1, 2))])
-    if kind == "flexible":
+    elif kind == "flexible":
         if series is None:
             raise ValueError("the flexible feedforward needs the prescribed rollout's series")
-        return jnp.concatenate([series.tau, jnp.broadcast_to(series.tau[-1], (grid.dwell_steps + 1, 2))])
-    raise ValueError(f"unknown feedforward {kind!r}")
+        motion, rest = flexible_feedforward(controller, series, interpolate(tables.fast(), tables.breaks[-1]).qa,
+                                            advance)
+    else:
+        raise ValueError(f"unknown feedforward {kind!r}")
+    return jnp.concatenate([motion, jnp.broadcast_to(rest, (grid.dwell_steps + 1, 2))])
 
 
 def check_schedule(grid: Grid, tf: float, dwell: float, rate: float) -> None:

@@ -43,6 +43,8 @@ from jaxflex.metrics import Terms
 from jaxflex.path import Cycle
 from jaxflex.profiles import shaped
 from jaxflex.robot import Robot
+from jaxflex.servo import Servo
+from jaxflex.servo_simulate import feedforward_torques
 from jaxflex.rollout import RolloutModel, RolloutState
 from jaxflex.simulate import Grid, motion_samples
 from jaxflex.workspace import Workspace
@@ -168,21 +170,27 @@ class DesignObjective:
     dwell: jax.Array
     scales: Scales
     workspaces: Workspace | None = None
+    servos: Servo | None = None
+    advance: jax.Array | None = None
     grid: Grid = dataclasses.field(default=Grid(), **_static)
     blend: str = dataclasses.field(default=BLEND_FAMILY, **_static)
     order: int = dataclasses.field(default=3, **_static)
     torque_weight: float = dataclasses.field(default=TORQUE_WEIGHT, **_static)
     power: float = dataclasses.field(default=1.0, **_static)
+    controller: int = dataclasses.field(default=0, **_static)
 
     @property
     def count(self) -> int:
         """The number K of training models."""
         return int(self.robots.payload.shape[0])
 
-    def rollout_model(self, robot: Robot, workspace: Workspace | None) -> RolloutModel:
-        """The rollout of one model (one robot and its workspace tables) of this objective."""
+    def rollout_model(self, robot: Robot, workspace: Workspace | None, servo: Servo | None = None,
+                      controller: Robot | None = None) -> RolloutModel:
+        """The rollout of one model (one robot and its workspace tables) of this objective, under
+        ``servo`` with the feedforward of the ``controller``'s model (None: the perfect controller)."""
         return RolloutModel(robot=robot, tf=self.tf, dwell=self.dwell, cycle=self.cycle, workspace=workspace,
-                            grid=self.grid, second_order=True, blend=self.blend, order=self.order)
+                            servo=servo, controller=controller, grid=self.grid, second_order=True, blend=self.blend,
+                            order=self.order)
 
     @staticmethod
     def start(model: RolloutModel, params: Params) -> RolloutState:
@@ -197,10 +205,27 @@ class DesignObjective:
 
     def terms(self, params: Params) -> Terms:
         """The per-model terms (leaves with the leading axis K) of the decoded design on the
-        second-order fast model."""
+        second-order fast model; under ``servos`` (one per model, stacked; their robots carry their
+        rotors) the closed loop's, the feedforward computed on the model of index ``controller``
+        (the nominal one: what the controller knows), a flexible one advanced by ``advance`` [s]."""
         x = decode(self.cycle, params)
-        one = lambda robot, ws: rl.run(self.rollout_model(robot, ws), RolloutState(design=x)).terms
-        return over_models(one, self.robots, self.workspaces)
+        if self.servos is None:
+            one = lambda robot, ws: rl.run(self.rollout_model(robot, ws), RolloutState(design=x)).terms
+            return over_models(one, self.robots, self.workspaces)
+        pick = lambda tree: None if tree is None else jax.tree_util.tree_map(lambda a: a[self.controller], tree)
+        nominal, nominal_ws = pick(self.robots), pick(self.workspaces)
+        ff = None
+        if self.servos.feedforward == "flexible":
+            prescribed = self.rollout_model(nominal, nominal_ws)
+            perfect = rl.run(prescribed, RolloutState(design=x), rl.active(prescribed, rl.between(None, "last pass")))
+            ff = feedforward_torques("flexible", nominal, perfect.tables, perfect.samples, self.grid, perfect.series,
+                                     self.advance)
+
+        def one(robot, ws, servo):
+            model = self.rollout_model(robot, ws, servo, None if ff is not None else nominal)
+            return rl.run(model, RolloutState(design=x, feedforward=ff)).terms
+
+        return over_models(one, self.robots, self.workspaces, self.servos)
 
     def __call__(self, params: Params):
         t = self.terms(params)
