@@ -23,7 +23,7 @@ def _add_common(p, preset=True):
     p.add_argument("--json", metavar="PATH", help="also write the results as JSON to PATH")
 
 
-def _add_servo(p):
+def _add_servo(p, feedforward="rigid"):
     """The servo loop's flags (docs/conventions.md#servo)."""
     g = p.add_argument_group("servo loop", "drive the motors with a sampled PD servo instead of prescribing them "
                                            "(the paper's perfect controller); docs/conventions.md#servo")
@@ -34,9 +34,10 @@ def _add_servo(p):
                    help="servo sample rate [Hz] (default: %(default)s)")
     g.add_argument("--rotor-inertia", type=float, default=0.01, metavar="J",
                    help="rotor inertia of each motor [kg m^2] (default: %(default)s)")
-    g.add_argument("--feedforward", default="rigid", choices=("none", "rigid", "flexible"),
+    g.add_argument("--feedforward", default=feedforward, choices=("none", "rigid", "flexible"),
                    help="feedforward torque: none, rigid inverse dynamics, or the flexible model's "
                         "(default: %(default)s)")
+    return g
 
 
 def servo_options(args) -> dict | None:
@@ -149,6 +150,25 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--out", metavar="DIR",
                    help="write optimize.json, trajectory.csv (t,x,y,q1,q2 at 10 kHz), figures and a "
                         "checkpoint to DIR; rerunning with the same DIR resumes")
+    p.add_argument("--export-rate", type=float, default=10_000.0, metavar="HZ",
+                   help="sample rate of trajectory.csv [Hz] (default: %(default)s)")
+    g = _add_servo(p, feedforward="flexible")
+    g.description = ("then judge the designs under a sampled PD servo of bandwidth FC: refine the design with "
+                     "the servo in the loop (the feedforward given to the design: --feedforward, default "
+                     "flexible; the paper's combinations and the baselines get the rigid one) and compare "
+                     "them at FC and the --servo-fcs bandwidths on the nominal model and the boxes of "
+                     "the robot and the controller (fc +-20 %%, rate 4-16 kHz, rotor +-10 %%); "
+                     "docs/conventions.md#servo")
+    g.add_argument("--servo-steps", type=int, default=20, metavar="N",
+                   help="optimizer steps with the servo in the loop (0: the perfect controller's design "
+                        "as is; default: %(default)s)")
+    g.add_argument("--servo-samples", type=int, default=200, metavar="N",
+                   help="random models of both boxes each trajectory is evaluated on under the servo "
+                        "(default: %(default)s)")
+    g.add_argument("--servo-fcs", type=float, nargs="*", default=[15.0, 40.0], metavar="FC",
+                   help="bandwidths [Hz] of the closed-loop comparison besides FC (default: 15 40)")
+    g.add_argument("--no-servo-corners", dest="servo_corners", action="store_false",
+                   help="skip the 32 corners of the boxes in the closed-loop comparison")
     p.add_argument("--cycle-time", nargs="*", type=float, metavar="TF",
                    help="instead: the cycle-time study for the first payload: optimize a design at each "
                         "motion time TF [s] (default: 0.43 0.40 0.37 0.34 0.31) and report the shortest one "
@@ -236,8 +256,13 @@ def main(argv=None) -> int:
                 optimize.run_cycle_time(args.preset, args.payload[0], args.tf, tfs, out=args.out,
                                         json_path=args.json, config=config)
             else:
+                closed = None
+                if args.servo is not None:
+                    closed = {**servo_options(args), "steps": args.servo_steps, "samples": args.servo_samples,
+                              "fcs": tuple(args.servo_fcs), "corners": args.servo_corners}
                 optimize.run(args.preset, tuple(args.payload), args.tf, out=args.out, json_path=args.json,
-                             verify=args.verify, config=dataclasses.replace(config, free_path=args.free_path))
+                             verify=args.verify, config=dataclasses.replace(config, free_path=args.free_path),
+                             export_rate=args.export_rate, closed_loop=closed)
         elif args.command == "bench":
             from jaxflex.experiments import bench
 

@@ -282,11 +282,67 @@ def error_figure(study, out_path: Path, payload_index: int = 0):
     save_figure(fig, out_path)
 
 
+def closed_loop_section(study, robot, cycle, payload: float, tf: float, options: dict, config: StudyConfig):
+    """The closed-loop study of the optimized design (``closed_loop_study``) with the CLI's options:
+    (its record, (path, law, servo) of the trajectory to export)."""
+    from jaxflex.designs import design_path
+    from jaxflex.optimize.closed_loop import Controller, closed_loop_study
+    from jaxflex.profiles import shaped
+    from jaxflex.servo import cycle_servo
+
+    if study.design is None:
+        raise ValueError("the closed-loop study refines a free-path design; drop --law-only with --servo")
+    controller = Controller(options["fc"], options["rate"], options["rotor_inertia"], options["feedforward"])
+    order = int(study.candidates["optimized"].law.order)
+    rec = closed_loop_study(robot, cycle, payload, tf, 0.1, study.grid, study.design, study.candidates["optimized"].law,
+                            controller, fcs=options["fcs"], steps=options["steps"], samples=options["samples"],
+                            corners=options["corners"], box=config.box, blend=config.train.blend, order=order,
+                            first_mode_hz=study.first_mode_hz[0], ruckig=config.ruckig, progress=True)
+    path, law = study.paths["optimized"], study.candidates["optimized"].law
+    if "refined" in rec:
+        from jaxflex.designs import design as make_design
+
+        c, coef = rec["refined"]["design"]["corners"], np.asarray(rec["refined"]["design"]["coef"])
+        x = make_design(c[0]["d_m"], c[0]["e_m"], c[0]["n"], coef, d2=c[1]["d_m"], e2=c[1]["e_m"], n2=c[1]["n"])
+        path, law = design_path(cycle, x, config.train.blend), shaped(jnp.asarray(coef), order, name="optimized")
+    servo = cycle_servo(robot.replace(payload=payload), cycle, controller.fc, rate=controller.rate,
+                        rotor_inertia=controller.rotor, feedforward=controller.feedforward)
+    return rec, (path, law, servo)
+
+
+def closed_loop_text(rec: dict) -> str:
+    """The closed-loop comparison as text: per bandwidth, each trajectory's dwell residual [um]
+    under the perfect controller and under the servo (nominal, box worst, p95), its ratio to the
+    best paper combination's and its peak torque [N m]."""
+    c = rec["controller"]
+    parts = [f"Under the servo (rate {c['rate']:g} Hz, rotor {c['rotor']:g} kg m^2; the optimized design with "
+             f"the {c['feedforward']} feedforward of the nominal model, the others with the rigid one; box: "
+             f"{rec['samples']} random models{' and 32 corners' if rec['corners'] else ''} of the robot's and the "
+             "controller's boxes):"]
+    if "refined" in rec:
+        h = rec["refined"]["history"]
+        parts.append(f"refined with the servo in the loop at fc {c['fc']:g} Hz: {rec['refined']['steps_run']} steps, "
+                     f"objective {h[0][1]:.3f} -> {min(r[1] for r in h):.3f}")
+    head = ["trajectory", "perfect [um]", "nominal [um]", "box worst [um]", "box p95 [um]", "x best paper (nominal)",
+            "x best paper (worst)", "torque [N m]"]
+    for fc, rows in rec["fcs"].items():
+        parts.append(f"\nfc {fc} Hz (best paper combination under this servo: {rec['paper'][fc]['best']})")
+        parts.append(table(head, [[k, fmt(v["perfect_um"], 3), fmt(v["nominal_um"], 3), fmt(v["box_worst_um"], 3),
+                                   fmt(v["p95_um"], 3), fmt(v["ratio_best_paper_nominal"], 3),
+                                   fmt(v["ratio_best_paper_worst"], 3), fmt(v["max_torque_nm"], 4)]
+                                  for k, v in rows.items()]))
+    return "\n".join(parts)
+
+
 def compute(preset="default", payloads=(6.0,), tf=0.43, out=None, verify=False, grid=None,
-            config: StudyConfig = StudyConfig(), export_rate: float = CSV_RATE_HZ) -> dict:
+            config: StudyConfig = StudyConfig(), export_rate: float = CSV_RATE_HZ, closed_loop: dict | None = None) -> dict:
     """Run the study (``optimize_design`` with ``config``) and return its JSON record; with ``out``
     also write the checkpoint (resumable), ``trajectory.csv`` and ``controller.json``
-    (``jaxflex.export``, at ``export_rate`` [Hz]), the figures and ``optimize.json`` there."""
+    (``jaxflex.export``, at ``export_rate`` [Hz]), the figures and ``optimize.json`` there. With
+    ``closed_loop`` (fc, rate, rotor_inertia, feedforward, steps, samples, fcs, corners) the design
+    is then refined and compared under the servo (``optimize.closed_loop.closed_loop_study``, the
+    record's "closed_loop"; the first payload), and the export is the refined design's for that
+    servo."""
     started = time.time()
     robot, cycle = robot_preset(preset), cycle_preset(preset)
     ckpt = None
@@ -309,10 +365,14 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, out=None, verify=False, 
            "provenance": provenance({"preset": preset, "payloads": list(payloads), "tf": tf,
                                      **config.record()}, started)}
     bar.update(note="record")
+    export_path, export_law, export_servo = study.paths["optimized"], study.candidates["optimized"].law, None
+    if closed_loop is not None:
+        rec["closed_loop"], (export_path, export_law, export_servo) = closed_loop_section(
+            study, robot, cycle, payloads[0], tf, closed_loop, config)
     if out:
         out = Path(out)
-        write_controller_files(out, robot.replace(payload=payloads[0]), study.paths["optimized"],
-                               study.candidates["optimized"].law, tf, servo=None, rate=export_rate, grid=study.grid)
+        write_controller_files(out, robot.replace(payload=payloads[0]), export_path, export_law, tf,
+                               servo=export_servo, rate=export_rate, grid=study.grid)
         bar.update(note="trajectory.csv, controller.json")
         figure(study, out)
         bar.update(note="design figure")
@@ -371,11 +431,13 @@ def verifications(records: list, preset: str = "default") -> list:
 
 
 def run(preset="default", payloads=(6.0,), tf=0.43, out=None, json_path=None, verify=False,
-        config: StudyConfig = StudyConfig()) -> dict:
+        config: StudyConfig = StudyConfig(), export_rate: float = CSV_RATE_HZ, closed_loop: dict | None = None) -> dict:
     """``jaxflex optimize``: ``compute`` with the CLI's arguments (payloads [kg], tf [s], the study's
-    configuration), print the text and write the JSON."""
-    rec = compute(preset, payloads, tf, out, verify, config=config)
+    configuration, the export's rate [Hz], the closed-loop options), print the text and write the JSON."""
+    rec = compute(preset, payloads, tf, out, verify, config=config, export_rate=export_rate, closed_loop=closed_loop)
     print(text(rec))
+    if "closed_loop" in rec:
+        print("\n" + closed_loop_text(rec["closed_loop"]))
     if json_path:
         write_json(json_path, rec)
     return rec

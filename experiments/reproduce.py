@@ -60,7 +60,7 @@ def compute(out: str = "results", quick: bool = False, vibration: bool = True, o
     results = {}
     plan = ["kinematics", "natural frequencies"]
     plan += ["vibration study"] * with_vibration + ["full-model check"] * (with_vibration and not quick)
-    plan += ["optimization studies"] * optimize
+    plan += ["optimization studies", "closed-loop study"] * optimize
     tracker = _Sections(plan, quick)
 
     tracker.next()
@@ -106,6 +106,11 @@ def compute(out: str = "results", quick: bool = False, vibration: bool = True, o
         if not quick:
             release_compiled()          # the studies run in processes of their own (``_optimization``)
         results["optimize"] = _optimization(out, quick, key, results.get("vibration"))
+        tracker.next()
+        print("== closed-loop study (beyond the paper: a servo loop instead of the perfect controller)", flush=True)
+        if not quick:
+            release_compiled()
+        results["closed_loop"] = _closed_loop(out, quick, key, results["optimize"])
     tracker.next()
     return results
 
@@ -210,6 +215,47 @@ def _optimization(out: Path, quick: bool, key: dict, vib: dict | None = None) ->
     paper = None if vib is None else paper_residuals(vib)
     res["richer"] = resumable(out / "richer_model.json", key, lambda: richer_sweep(1 if quick else 3, paper),
                               "the paper's combinations on the richer model")
+    return res
+
+
+CLOSED_LOOP_STEPS = 20      # optimizer steps of each design's refinement with the servo in the loop
+
+
+def _closed_loop(out: Path, quick: bool, key: dict, opt: dict) -> dict:
+    """The single-payload studies' optimized designs under the servo (``experiments.closed_loop``):
+    at each bandwidth of ``closed_loop.FCS`` the design refined with that servo in the loop and
+    compared with the paper's combinations and the baselines on the robot's and the controller's
+    boxes, then the figure of the nominal residual against the bandwidth. Each case resumes from
+    its JSON; full runs give each case a process of its own. Quick: the 6 kg case at 40 Hz, no
+    refinement, two random models, no corners, no Ruckig (a smoke run)."""
+    from jaxflex.optimize.closed_loop import Controller
+
+    from . import closed_loop as cl
+
+    isolated = (lambda fn, **kw: fn(**kw)) if quick else run_isolated
+    fcs = (40.0,) if quick else cl.FCS
+    res = {"quick": quick, "cases": []}
+    for case in opt["cases"]:
+        rec = case["record"]
+        if len(rec["payloads"]) != 1:
+            continue
+        name = f"{rec['payloads'][0]:g}"
+        d = out / f"closed_loop_{name}kg"
+
+        def work(rec=rec, d=d):
+            studies = {f"{fc:g}": cl.case(rec, Controller(fc), steps=0 if quick else CLOSED_LOOP_STEPS,
+                                          samples=2 if quick else 200, corners=not quick, fcs=(fc,), ruckig=not quick)
+                       for fc in fcs}
+            first = studies[f"{fcs[0]:g}"]
+            sweep = cl.bandwidth_sweep(rec, first, fcs=(15.0, 40.0) if quick else cl.FIGURE_FCS)
+            save_figure(cl.figure(sweep, first, case_label(rec["payloads"][0], rec["tf"])), d / "residual_vs_fc.png")
+            return {"studies": studies, "sweep": sweep}
+
+        r = resumable(d / "closed_loop.json", key, lambda: isolated(work), f"closed loop {name} kg")
+        res["cases"].append({"dir": d.relative_to(out).as_posix(), "payload": rec["payloads"][0], "tf": rec["tf"],
+                             **r})
+        if not quick:
+            release_compiled()
     return res
 
 

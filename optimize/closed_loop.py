@@ -133,26 +133,60 @@ def evaluate(trajectories: dict, robot: Robot, cycle: Cycle, tf: float, dwell: f
     on ``robot``, at ``rate`` [Hz] with ``rotor`` [kg m^2], the trajectory's feedforward kind) on the
     closed-loop models ``which``: name -> metrics dict name -> (K,) numpy arrays."""
     out = {}
+    groups = {}             # trajectories along one path with one feedforward kind share an evaluator
+    for name, tr in trajectories.items():
+        groups.setdefault((id(tr.path), tr.feedforward), []).append(name)
     bar = Progress(f"closed loop at fc {fc:g} Hz on {len(which)} models", total=len(trajectories), unit="law",
                    enabled=progress)
     with bar:
-        for name, tr in trajectories.items():
+        for names in groups.values():
+            tr = trajectories[names[0]]
             nominal = cycle_servo(robot, cycle, fc, rate=rate, rotor_inertia=rotor, feedforward=tr.feedforward)
             models, servos = model_robots(robot, cycle, nominal, which)
-            ev = LawEvaluator(models, tr.path, tf, dwell, grid, keep=False, servo=servos,
+            ok = stable(models, servos, tr.path, tf + dwell)
+            if not ok.any():
+                raise ValueError(f"every closed loop of the set is unstable at fc {fc:g} Hz")
+            kept = np.flatnonzero(ok)
+            sub = ModelSet(jax.tree_util.tree_map(lambda a: a[kept], models.robots),
+                           tuple(models.ids[i] for i in kept))
+            ev = LawEvaluator(sub, tr.path, tf, dwell, grid, keep=False, servo=[servos[i] for i in kept],
                               controller=with_rotor(robot, nominal), advance=float(feedforward_advance(nominal)))
-            law = tr.law(ev.grid) if callable(tr.law) else tr.law
-            out[name] = ev(law)
-            bar.update(note=name)
+            laws = [trajectories[n].law for n in names]
+            mets = ev.metrics_many([law(ev.grid) if callable(law) else law for law in laws])
+            for name, met in zip(names, mets):
+                full = {}
+                for k, v in met.items():
+                    a = np.full(len(which), np.nan)
+                    a[kept] = np.asarray(v)
+                    full[k] = a
+                out[name] = full
+                bar.update(note=name)
     return out
+
+
+def stable(models: ModelSet, servos: Sequence[Servo], path: Path, duration: float) -> np.ndarray:
+    """Whether each model's loop passes ``servo.check_stable`` along the path over ``duration`` [s]
+    (bool (K,)). An unstable loop is the controller's defect, which no trajectory repairs: the
+    closed-loop comparison leaves those models out and counts them."""
+    from jaxflex.servo import check_stable
+
+    out = []
+    for robot, servo in zip(models.singles(), servos):
+        try:
+            check_stable(robot, servo, path, duration)
+            out.append(True)
+        except ValueError:
+            out.append(False)
+    return np.asarray(out)
 
 
 def summary(metrics: dict) -> dict:
     """The closed-loop figures of one trajectory on a set whose first model is the nominal one:
     dwell residual [um] nominal, worst, 95th percentile and median, and the nominal peak torque [N m]."""
     r = np.asarray(metrics["dwell_residual_mm"]) * 1e3
-    return {"nominal_um": float(r[0]), "worst_um": float(np.max(r)), "p95_um": float(np.percentile(r, 95)),
-            "median_um": float(np.median(r)), "max_torque_nm": float(np.asarray(metrics["max_torque_nm"])[0])}
+    return {"nominal_um": float(r[0]), "worst_um": float(np.nanmax(r)), "p95_um": float(np.nanpercentile(r, 95)),
+            "median_um": float(np.nanmedian(r)), "max_torque_nm": float(np.asarray(metrics["max_torque_nm"])[0]),
+            "unstable": int(np.sum(np.isnan(r)))}
 
 
 def train_models(payload: float, box: Box, servo_box: ServoBox) -> tuple:
@@ -183,17 +217,25 @@ def closed_loop_objective(x0, robot: Robot, cycle: Cycle, tf: float, dwell: floa
     e.g. the best paper combination's closed-loop metrics on the nominal model: its
     ``residual_energy`` [J] and ``dwell_residual_mm`` [mm], first entry; one constant for every
     model, absolute as docs/conventions.md#uncertainty-box asks), the power mean of order ``power`` over the models,
-    the peak torque bounded by ``torque_bound`` [N m] on every model. Returns (objective, params0)."""
+    the peak torque bounded by ``torque_bound`` [N m] on every model; models whose loop is unstable
+    along x0's path are left out (``stable``). Returns (objective, params0, the models kept)."""
     from jaxflex.servo_simulate import servo_grid
     from jaxflex import trees
     from jaxflex.tables import build_workspaces
 
     from .objective import DesignObjective, Scales, encode
 
+    from jaxflex.designs import design_path
+
     nominal = cycle_servo(robot, cycle, fc, rate=rate, rotor_inertia=rotor, feedforward=feedforward)
-    models, servos = model_robots(robot, cycle, nominal, which)
     if which[0].model != ModelId(which[0].model.payload) or which[0].fc_scale != 1.0:
         raise ValueError("the first closed-loop model must be the nominal one (the feedforward's model)")
+    models, servos = model_robots(robot, cycle, nominal, which)
+    ok = stable(models, servos, design_path(cycle, x0, blend), tf + dwell)
+    if not ok[0]:
+        raise ValueError(f"the nominal closed loop is unstable at fc {fc:g} Hz, {rate:g} Hz")
+    which = tuple(w for w, keep in zip(which, ok) if keep)      # unstable loops: no trajectory repairs them
+    models, servos = model_robots(robot, cycle, nominal, which)
     k = len(which)
     fine = servo_grid(grid, tf, dwell, max(float(s.rate) for s in servos))
     robots = models.robots
@@ -205,4 +247,152 @@ def closed_loop_objective(x0, robot: Robot, cycle: Cycle, tf: float, dwell: floa
                                 build_workspaces(robots, cycle), servos=trees.stack(servos, dtype=float),
                                 advance=jnp.asarray(float(feedforward_advance(nominal))), grid=fine, blend=blend,
                                 order=order, power=power, controller=0)
-    return objective, encode(cycle, x0)
+    return objective, encode(cycle, x0), which
+
+
+class Controller(NamedTuple):
+    """The controller a closed-loop study sets up: the bandwidth ``fc`` [Hz] it is trained at, the
+    ``rate`` [Hz], the ``rotor`` inertia [kg m^2] and the ``feedforward`` kind of the optimized
+    design (the paper's combinations and the industrial baselines get the rigid one, what a
+    controller with a rigid model computes)."""
+
+    fc: float
+    rate: float = DEFAULT_RATE_HZ
+    rotor: float = DEFAULT_ROTOR
+    feedforward: str = "flexible"
+
+
+def paper_under_servo(robot: Robot, cycle: Cycle, payload: float, tf: float, dwell: float, fc: float,
+                      controller: Controller, progress: bool = False) -> tuple:
+    """The 12 paper combinations under the servo of bandwidth fc (rigid feedforward) on the nominal
+    robot: (metrics name -> (B, P) arrays, blends, profiles, (blend, law) of the least dwell residual)."""
+    from jaxflex.sweep import Case, SweepConfig, run_sweep
+
+    servo = cycle_servo(robot.replace(payload=payload), cycle, fc, rate=controller.rate, rotor_inertia=controller.rotor,
+                        feedforward="rigid")
+    res = run_sweep(robot, cycle, (Case(payload, tf),), SweepConfig(dwell=dwell, servo=servo, timed=False,
+                                                                    progress=progress))
+    m = {k: np.asarray(v)[..., 0] for k, v in res.metrics.items()}
+    i, j = np.unravel_index(np.argmin(m["dwell_residual_mm"]), m["dwell_residual_mm"].shape)
+    return m, res.blends, res.profiles, (res.blends[i], res.profiles[j])
+
+
+def _perfect(path: Path, law, robot: Robot, payload: float, tf: float, dwell: float, grid: Grid) -> dict:
+    from jaxflex.model_sets import model_set
+
+    ev = LawEvaluator(model_set(robot, [payload]), path, tf, dwell, grid)
+    return ev(law(ev.grid) if callable(law) else law)
+
+
+def refine(x0, robot: Robot, cycle: Cycle, payload: float, tf: float, dwell: float, grid: Grid,
+           controller: Controller, reference: dict, torque_bound: float, *, steps: int = 20,
+           learning_rate: float = 0.02, box: Box = Box(), servo_box: ServoBox = ServoBox(), blend: str = "smoothstep",
+           order: int = 3, progress: bool = False):
+    """The design x0 refined with the servo in the loop: Adam on ``closed_loop_objective`` over
+    ``train_models`` (the nominal model and eight corners of E, payload, bandwidth and rate) at the
+    controller's bandwidth, the gradient through the closed-loop rollouts (one program, reverse
+    mode). Returns (design, ``OptResult``, the training models kept: ``closed_loop_objective``)."""
+    from .config import OptimizerConfig
+    from .gradient import OneProgram
+    from .loop import minimize
+    from .objective import decode
+
+    which = train_models(payload, box, servo_box)
+    objective, p0, which = closed_loop_objective(x0, robot.replace(payload=payload), cycle, tf, dwell, grid, controller.fc,
+                                          which, reference, torque_bound, feedforward=controller.feedforward,
+                                          rate=controller.rate, rotor=controller.rotor, blend=blend, order=order)
+    config = OptimizerConfig(steps=steps, learning_rate=learning_rate, patience=max(steps, 1), progress=progress,
+                             label=f"closed loop fc={controller.fc:g}")
+    result = minimize(objective, p0, (), config, gradient=OneProgram(build="quick"))
+    return jax.tree_util.tree_map(np.asarray, decode(cycle, result.params)), result, which
+
+
+def closed_loop_study(robot: Robot, cycle: Cycle, payload: float, tf: float, dwell: float, grid: Grid, design,
+                      law, controller: Controller, *, fcs: Sequence[float] = (15.0, 40.0), steps: int = 0,
+                      samples: int = 200, corners: bool = True, box: Box = Box(), servo_box: ServoBox = ServoBox(),
+                      blend: str = "smoothstep", order: int = 3, first_mode_hz: float | None = None,
+                      ruckig: bool = True, progress: bool = False) -> dict:
+    """The designs under the servo (module docstring), as a JSON-ready record.
+
+    ``design`` (a ``Design`` of the ``blend`` family) with its shaped ``law`` is the perfect
+    controller's optimized design. With ``steps`` > 0 it is first refined with the servo in the loop
+    at ``controller.fc`` (``refine``: the closed-loop residual in units of the best paper
+    combination's under the same servo, the peak torque bounded by poly7-Lamé's). At every
+    bandwidth of ``fcs`` and the controller's, the 12 paper combinations are run under the servo
+    (rigid feedforward) on the nominal robot; the best of them, its ZV/ZVD versions (first mode
+    ``first_mode_hz``), the Ruckig profile on its path and poly7-Lamé (rigid feedforward), and the
+    optimized design (the controller's feedforward kind) are then evaluated on the nominal model,
+    ``samples`` random models of both boxes and (``corners``) their 32 corners (``corner_models``),
+    beside their perfect-controller residual on the nominal model."""
+    from jaxflex.designs import design_path
+    from jaxflex.path import make_path
+    from jaxflex.profiles import make_profile, shaped
+
+    from .baselines import ruckig_samples, shaper_profiles
+
+    started = time.time()
+    fc_all = sorted(set(float(f) for f in fcs) | {float(controller.fc)})
+    nominal_robot = robot.replace(payload=payload)
+    sweeps = {fc: paper_under_servo(robot, cycle, payload, tf, dwell, fc, controller, progress) for fc in fc_all}
+    rec = {"controller": controller._asdict(), "payload": payload, "tf": tf, "dwell": dwell,
+           "box": dataclasses.asdict(box.checked()), "servo_box": dataclasses.asdict(servo_box.checked()),
+           "samples": samples, "corners": bool(corners), "paper": {}, "fcs": {}}
+    for fc, (m, blends, profiles, best) in sweeps.items():
+        rec["paper"][f"{fc:g}"] = {"best": "/".join(best), "dwell_residual_um": {
+            f"{b}/{p}": float(m["dwell_residual_mm"][i, j]) * 1e3 for i, b in enumerate(blends)
+            for j, p in enumerate(profiles)}}
+    x = design
+    if steps > 0:
+        m, blends, profiles, best = sweeps[float(controller.fc)]
+        i, j = blends.index(best[0]), profiles.index(best[1])
+        reference = {k: m[k][i, j] for k in ("residual_energy", "dwell_residual_mm")}
+        bound = float(m["max_torque_nm"][blends.index("lame"), profiles.index("poly7")])
+        x, result, trained = refine(design, robot, cycle, payload, tf, dwell, grid, controller, reference, bound, steps=steps,
+                           box=box, servo_box=servo_box, blend=blend, order=order, progress=progress)
+        law = shaped(jnp.asarray(x.coef), order, name="optimized")
+        rec["refined"] = {"history": [list(map(float, h)) for h in result.history], "steps_run": result.steps_run,
+                          "training_models": [w.label for w in trained],
+                          "torque_bound_nm": bound, "design": {"corners": [
+                              {"d_m": float(x.d[k]), "e_m": float(x.e[k]), "n": float(x.n[k])} for k in range(2)],
+                              "coef": np.asarray(x.coef).tolist()}}
+    which = (random_models(payload, box, servo_box, samples) if samples else (ServoModel(ModelId(float(payload))),))
+    if corners:
+        which = which + corner_models(payload, box, servo_box)
+    opt_path = design_path(cycle, x, blend)
+    for fc in fc_all:
+        _, _, _, (b, p) = sweeps[fc]
+        paper_path = make_path(cycle, b, 0.025)
+        trs = {"optimized": Trajectory(opt_path, law, controller.feedforward),
+               f"{b}/{p} (best paper)": Trajectory(paper_path, make_profile(p), "rigid")}
+        if first_mode_hz is not None:
+            for prof in shaper_profiles(p, first_mode_hz, tf):
+                trs[f"{b}/{prof.name}"] = Trajectory(paper_path, prof, "rigid")
+        if ruckig:
+            try:
+                ruckig_samples(float(paper_path.length), tf, grid)
+                trs[f"{b}/ruckig"] = Trajectory(paper_path, lambda g, L=float(paper_path.length):
+                                                ruckig_samples(L, tf, g)[0], "rigid")
+            except ImportError:
+                pass
+        trs["lame/poly7"] = Trajectory(make_path(cycle, "lame", 0.025), make_profile("poly7"), "rigid")
+        out = evaluate(trs, robot.replace(payload=payload), cycle, tf, dwell, grid, fc, which, rate=controller.rate,
+                       rotor=controller.rotor, progress=progress)
+        n_random = 1 + samples if samples else 1
+        row = {}
+        for name, tr in trs.items():
+            met = out[name]
+            perfect = _perfect(tr.path, tr.law, nominal_robot, payload, tf, dwell, grid)
+            r = np.asarray(met["dwell_residual_mm"]) * 1e3
+            row[name] = {**summary({k: np.asarray(v)[:n_random] for k, v in met.items()}),
+                         "box_worst_um": float(np.nanmax(r)), "box_unstable": int(np.sum(np.isnan(r))),
+                         "box_models": int(r.size),
+                         "perfect_um": float(np.asarray(perfect["dwell_residual_mm"])[0]) * 1e3,
+                         "perfect_max_torque_nm": float(np.asarray(perfect["max_torque_nm"])[0]),
+                         "feedforward": tr.feedforward}
+        paper = row[f"{b}/{p} (best paper)"]
+        for v in row.values():
+            v["ratio_best_paper_nominal"] = paper["nominal_um"] / v["nominal_um"]
+            v["ratio_best_paper_worst"] = paper["box_worst_um"] / v["box_worst_um"]
+        rec["fcs"][f"{fc:g}"] = row
+    rec["wall_s"] = time.time() - started
+    return rec

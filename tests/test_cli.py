@@ -121,6 +121,23 @@ def test_sweep_command(tmp_path, capsys):
     assert "|e''(tf)| < 1 kHz" in out and "dwell" in out
 
 
+@pytest.mark.xdist_group("commands")
+def test_sweep_command_under_a_servo(tmp_path, capsys):
+    """``sweep --servo 40`` on the 0.1 kg, 0.3 s case: the 12 combinations under the servo, the servo's
+    record (gains of the default rule, rate, rotor, feedforward, units) in the JSON and named in the
+    text; every residual finite and positive."""
+    path = tmp_path / "s.json"
+    out, _ = _run(["sweep", "--payload", "0.1", "--tf", "0.3", "--servo", "40", "--json", path], capsys)
+    rec = json.loads(path.read_text())
+    sv = rec["servo"]
+    assert sv["fc"] == 40.0 and sv["rate"] == 8000.0 and sv["rotor_inertia"] == 0.01 and sv["feedforward"] == "rigid"
+    assert min(sv["kp"]) > 0 and min(sv["kd"]) > 0 and sv["units"]["kp"] == "N m/rad"
+    assert len(rec["results"]) == 12
+    for r in rec["results"]:
+        assert all(math.isfinite(r[m]) and r[m] > 0 for m in METRICS), r
+    assert "servo fc 40 Hz" in out
+
+
 def _read_csv(path):
     with open(path) as f:
         rows = list(csv.reader(f))
@@ -130,7 +147,8 @@ def _read_csv(path):
 @pytest.mark.xdist_group("commands")
 def test_optimize_command_writes_its_outputs_and_resumes(tmp_path, capsys):
     """Two optimizer steps on the nominal model with --out: the study JSON, trajectory.csv (t, x, y,
-    q1, q2 at 10 kHz over [0, tf], from the pick to the place point, q the IGM of (x, y)), the
+    q1, q2, their rates and accelerations, the torque, at 10 kHz over [0, tf], from the pick to the
+    place point, q the IGM of (x, y)) with controller.json, the
     figures and the checkpoint; a rerun resumes from the checkpoint and reports the same design."""
     from jaxflex.robot import cycle_preset, igm, robot_preset
 
@@ -155,22 +173,47 @@ def test_optimize_command_writes_its_outputs_and_resumes(tmp_path, capsys):
         assert all(x > 0 and math.isfinite(x) for x in v["dwell_residual_mm"] + v["perturbed_mm"])
     assert all(math.isfinite(x) for x in _finite_numbers(rec))
     head, rows = _read_csv(out_dir / "trajectory.csv")
-    assert head == ["t", "x", "y", "q1", "q2"]
-    assert rows.shape == (4301, 5)
+    assert head == ["t", "x", "y", "q1", "q2", "dq1", "dq2", "ddq1", "ddq2", "tau1", "tau2"]
+    assert rows.shape == (4301, 11)
     np.testing.assert_allclose(np.diff(rows[:, 0]), 1e-4, rtol=1e-9)
     cycle, robot = cycle_preset(), robot_preset("default")
     np.testing.assert_allclose(rows[0, 1:3], cycle.pick, atol=1e-12)
     np.testing.assert_allclose(rows[-1, 1:3], cycle.place, atol=1e-12)
     for i in (0, 1234, 4300):
-        np.testing.assert_allclose(rows[i, 3:], np.asarray(igm(robot, rows[i, 1:3])), atol=1e-9)
+        np.testing.assert_allclose(rows[i, 3:5], np.asarray(igm(robot, rows[i, 1:3])), atol=1e-9)
+    # the perfect controller's torque: at the pick at rest it holds the robot against gravity,
+    # within the static sag's share of the rigid static torque; it moves the 6 kg payload in between
+    controller = json.loads((out_dir / "controller.json").read_text())
+    assert controller["feedforward"] == "flexible" and controller["kp"] is None and controller["csv_rate"] == 1e4
+    assert controller["column_units"]["tau1"] == "N m" and controller["columns"] == head
+    from jaxflex.rigid import rigid_torques
+    static = np.asarray(rigid_torques(robot.replace(payload=6.0), rows[0, 3:5], np.zeros(2), np.zeros(2)))
+    np.testing.assert_allclose(rows[0, 9:11], static, rtol=0.02, atol=0.02 * np.max(np.abs(static)))
+    assert 20 < np.max(np.abs(rows[:, 9:11])) < 400
     # the rerun with the same directory resumes at step 2 and ends with the same design (the
     # checkpoint holds the optimizer's state only: the rerun skips the box and richer evaluations)
-    _, err = _run(["optimize", *OPT, "--box-samples", "0", "--richer-modes", "0", "--out", out_dir,
-                   "--json", j2], capsys)
+    # and, with --servo, judges it under a 40 Hz servo (no refinement, the nominal model only) and
+    # exports it for that servo: its gains and the flexible feedforward in the CSV
+    out, err = _run(["optimize", *OPT, "--box-samples", "0", "--richer-modes", "0", "--out", out_dir,
+                     "--json", j2, "--servo", "40", "--servo-steps", "0", "--servo-samples", "0",
+                     "--no-servo-corners", "--servo-fcs"], capsys)
     assert "resumed at step 2" in err
     rec2 = json.loads(j2.read_text())
     assert rec2["history"] == rec["history"] and rec2["design"] == rec["design"]
     assert rec2["laws"]["optimized"]["dwell_residual_mm"] == rec["laws"]["optimized"]["dwell_residual_mm"]
+    closed = rec2["closed_loop"]
+    assert list(closed["fcs"]) == ["40"] and closed["controller"]["feedforward"] == "flexible"
+    assert len(closed["paper"]["40"]["dwell_residual_um"]) == 12
+    rows = closed["fcs"]["40"]
+    assert {"optimized", "lame/poly7"} <= set(rows) and any(k.endswith("(best paper)") for k in rows)
+    for v in rows.values():
+        assert v["nominal_um"] > 0 and v["perfect_um"] > 0 and v["unstable"] == 0 and v["box_models"] == 1
+    best = min(closed["paper"]["40"]["dwell_residual_um"].values())
+    assert next(v for k, v in rows.items() if k.endswith("(best paper)"))["nominal_um"] == pytest.approx(best, rel=1e-9)
+    assert "Under the servo" in out and "fc 40 Hz" in out
+    controller = json.loads((out_dir / "controller.json").read_text())
+    assert controller["controller"] == "servo" and controller["fc"] == 40.0 and controller["rate"] == 8000.0
+    assert controller["feedforward"] == "flexible" and min(controller["kp"]) > 0 and min(controller["kd"]) > 0
 
 
 @pytest.mark.xdist_group("commands")

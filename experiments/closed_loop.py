@@ -1,0 +1,95 @@
+"""The closed-loop section of ``jaxflex reproduce``: the optimized designs and the paper's combinations
+under a servo loop (docs/conventions.md#servo), and the figure of residual against the bandwidth.
+
+Thin script over ``jaxflex.optimize.closed_loop``: for an optimization study's record (its design,
+law and first mode), ``case`` runs the closed-loop study and ``bandwidth_sweep`` the nominal
+residual at several bandwidths; ``figure`` draws it.
+"""
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+
+from jaxflex.designs import design, design_path
+from jaxflex.optimize.closed_loop import Controller, ServoModel, Trajectory, closed_loop_study, evaluate
+from jaxflex.path import make_path
+from jaxflex.profiles import make_profile, shaped
+from jaxflex.robot import cycle_preset, robot_preset
+from jaxflex.sweep import default_grid
+from jaxflex.uncertainty import ModelId
+
+FCS = (15.0, 40.0)                          # the bandwidths of the comparison [Hz]
+FIGURE_FCS = (10.0, 15.0, 20.0, 25.0, 30.0, 40.0)
+
+
+def design_of(record: dict):
+    """(Design, law, blend family) of an optimization study's record (``experiments.optimize``)."""
+    p, coef = record["design"]["path"], np.asarray(record["design"]["coef"])
+    c = p["corners"]
+    x = design(c[0]["d_m"], c[0]["e_m"], c[0]["n"], coef, d2=c[1]["d_m"], e2=c[1]["e_m"], n2=c[1]["n"])
+    return x, shaped(jnp.asarray(coef), int(record["design"]["order"]), name="optimized"), p["blend"]
+
+
+def case(record: dict, controller: Controller, *, steps: int, samples: int, corners: bool, fcs=FCS,
+         ruckig: bool = True, progress: bool = True) -> dict:
+    """The closed-loop study (``closed_loop_study``) of a single-payload study's optimized design."""
+    (payload,), tf = record["payloads"], record["tf"]
+    robot, cycle = robot_preset("default"), cycle_preset("default")
+    x, law, blend = design_of(record)
+    grid = default_grid(robot.replace(payload=payload), [tf], 0.1)
+    return closed_loop_study(robot, cycle, payload, tf, 0.1, grid, x, law, controller, fcs=fcs, steps=steps,
+                             samples=samples, corners=corners, blend=blend, order=law.order,
+                             first_mode_hz=record["first_mode_hz"][0], ruckig=ruckig, progress=progress)
+
+
+def bandwidth_sweep(record: dict, closed: dict, fcs=FIGURE_FCS, progress: bool = True) -> dict:
+    """The nominal model's closed-loop dwell residual [um] at every bandwidth of ``fcs`` [Hz] (8 kHz,
+    the study's rotor) for the optimized design (refined if ``closed`` holds a refinement) with its
+    feedforward and with the rigid one, the best paper combination at the study's first bandwidth
+    and poly7-Lamé (rigid feedforward), beside their perfect-controller values."""
+    (payload,), tf = record["payloads"], record["tf"]
+    robot, cycle = robot_preset("default").replace(payload=payload), cycle_preset("default")
+    x, law, blend = design_of(record)
+    if "refined" in closed:
+        r = closed["refined"]["design"]
+        x = x._replace(d=jnp.asarray([c["d_m"] for c in r["corners"]]), e=jnp.asarray([c["e_m"] for c in r["corners"]]),
+                       n=jnp.asarray([c["n"] for c in r["corners"]]), coef=jnp.asarray(r["coef"]))
+        law = shaped(jnp.asarray(r["coef"]), law.order, name="optimized")
+    c = closed["controller"]
+    first = next(iter(closed["paper"]))
+    b, p = closed["paper"][first]["best"].split("/")
+    paper_path = make_path(cycle, b, 0.025)
+    opt_path = design_path(cycle, x, blend)
+    trs = {"optimized": Trajectory(opt_path, law, c["feedforward"]),
+           "optimized, rigid feedforward": Trajectory(opt_path, law, "rigid"),
+           f"{b}/{p}": Trajectory(paper_path, make_profile(p), "rigid"),
+           "lame/poly7": Trajectory(make_path(cycle, "lame", 0.025), make_profile("poly7"), "rigid")}
+    grid = default_grid(robot, [tf], 0.1)
+    nominal = (ServoModel(ModelId(float(payload))),)
+    out = {name: [] for name in trs}
+    for fc in fcs:
+        res = evaluate(trs, robot, cycle, tf, 0.1, grid, fc, nominal, rate=c["rate"], rotor=c["rotor"],
+                       progress=progress)
+        for name in trs:
+            out[name].append(float(res[name]["dwell_residual_mm"][0]) * 1e3)
+    return {"fcs": list(fcs), "dwell_residual_um": out}
+
+
+def figure(sweep: dict, closed: dict, label: str):
+    """Dwell residual [um] on the nominal model against the servo's bandwidth fc [Hz] (log scale), one
+    line per trajectory, its perfect-controller value dashed where the study has it."""
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    perfect = next(iter(closed["fcs"].values()))
+    for i, (name, values) in enumerate(sweep["dwell_residual_um"].items()):
+        ax.semilogy(sweep["fcs"], values, "o-", color=f"C{i}", label=name, lw=1.6 if name == "optimized" else 1.0)
+        key = next((k for k in perfect if k == name or k.startswith(name + " ")), None)
+        if key is not None and not name.endswith("rigid feedforward"):
+            ax.axhline(perfect[key]["perfect_um"], color=f"C{i}", ls="--", lw=0.8)
+    ax.set(xlabel="servo bandwidth fc [Hz]", ylabel="dwell residual [um]",
+           title=f"{label}: under the servo (solid) and the perfect controller (dashed)")
+    ax.legend(fontsize=8)
+    ax.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    return fig
