@@ -196,6 +196,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-optimize", dest="optimize", action="store_false",
                    help="skip the optimization study (beyond the paper: optimized trajectories vs the "
                         "baselines, cycle-time study)")
+    p.add_argument("--no-closed-loop", dest="closed_loop", action="store_false",
+                   help="skip the closed-loop study (the optimized designs refined and compared under a servo "
+                        "loop at 15 and 40 Hz; about half of the full run's time)")
     p.add_argument("--quick", action="store_true",
                    help="coarser grids and fewer points, no convergence or full-model checks: a fast "
                         "smoke run (not for publication)")
@@ -270,7 +273,8 @@ def main(argv=None) -> int:
         elif args.command == "reproduce":
             from jaxflex.experiments import reproduce
 
-            reproduce.run(args.out, quick=args.quick, vibration=args.vibration, optimize=args.optimize)
+            reproduce.run(args.out, quick=args.quick, vibration=args.vibration, optimize=args.optimize,
+                          closed_loop=args.closed_loop)
     except ValueError as err:
         print(f"jaxflex {args.command}: error: {_one_line(err)}", file=sys.stderr)
         return 2

@@ -326,7 +326,9 @@ def closed_loop_text(rec: dict) -> str:
     head = ["trajectory", "perfect [um]", "nominal [um]", "box worst [um]", "box p95 [um]", "x best paper (nominal)",
             "x best paper (worst)", "torque [N m]"]
     for fc, rows in rec["fcs"].items():
-        parts.append(f"\nfc {fc} Hz (best paper combination under this servo: {rec['paper'][fc]['best']})")
+        first = next(iter(rows.values()))
+        parts.append(f"\nfc {fc} Hz (best paper combination under this servo: {rec['paper'][fc]['best']}; "
+                     f"{first['box_unstable']} of the {first['box_models']} models' loops unstable, left out)")
         parts.append(table(head, [[k, fmt(v["perfect_um"], 3), fmt(v["nominal_um"], 3), fmt(v["box_worst_um"], 3),
                                    fmt(v["p95_um"], 3), fmt(v["ratio_best_paper_nominal"], 3),
                                    fmt(v["ratio_best_paper_worst"], 3), fmt(v["max_torque_nm"], 4)]

@@ -23,12 +23,13 @@ from .io import provenance, resumable, save_figure, write_json, write_text
 from .report import case_label
 
 
-def run(out: str = "results", quick: bool = False, vibration: bool = True, optimize: bool = True) -> dict:
+def run(out: str = "results", quick: bool = False, vibration: bool = True, optimize: bool = True,
+        closed_loop: bool = True) -> dict:
     """``jaxflex reproduce``: ``compute`` every section into ``out``, then render REPORT.md from the
     results (``experiments.report.render``) and write it with the run's provenance. Returns the
     sections' results."""
     started = time.time()
-    results = compute(out, quick, vibration, optimize)
+    results = compute(out, quick, vibration, optimize, closed_loop)
     out = Path(out)
     prov = provenance({"out": str(out), "quick": quick}, started)
     write_text(out / "REPORT.md", report.render(results, out, quick, prov, time.time() - started))
@@ -37,14 +38,16 @@ def run(out: str = "results", quick: bool = False, vibration: bool = True, optim
     return results
 
 
-def compute(out: str = "results", quick: bool = False, vibration: bool = True, optimize: bool = True) -> dict:
+def compute(out: str = "results", quick: bool = False, vibration: bool = True, optimize: bool = True,
+            closed_loop: bool = True) -> dict:
     """Compute every section in order, each writing its JSON/CSV/PNG into ``out``; returns the
     sections' results (``results["kinematics_default"]``, ``"modes"``, ``"vibration"``,
     ``"convergence"``, ``"optimize"``). ``vibration`` (default on) runs the simulation study of the
     paper's Section 4; without ``quick`` it is followed by the step-convergence study and the
     cross-check against the full nonlinear model. ``optimize`` (default on) adds the optimization
     studies (beyond the paper): the optimized designs against the baselines for both paper cases
-    (resumable: checkpoints in DIR/optimize_*) and the cycle-time study. A section whose JSON is
+    (resumable: checkpoints in DIR/optimize_*) and the cycle-time study; with ``closed_loop``
+    (default on) the designs are then refined and compared under a servo loop (``_closed_loop``). A section whose JSON is
     there from a run of the same version and mode is loaded instead of computed."""
     with_vibration = vibration
     if not isinstance(out, (str, Path)) or not str(out):
@@ -60,7 +63,7 @@ def compute(out: str = "results", quick: bool = False, vibration: bool = True, o
     results = {}
     plan = ["kinematics", "natural frequencies"]
     plan += ["vibration study"] * with_vibration + ["full-model check"] * (with_vibration and not quick)
-    plan += ["optimization studies", "closed-loop study"] * optimize
+    plan += ["optimization studies"] * optimize + ["closed-loop study"] * (optimize and closed_loop)
     tracker = _Sections(plan, quick)
 
     tracker.next()
@@ -106,6 +109,7 @@ def compute(out: str = "results", quick: bool = False, vibration: bool = True, o
         if not quick:
             release_compiled()          # the studies run in processes of their own (``_optimization``)
         results["optimize"] = _optimization(out, quick, key, results.get("vibration"))
+    if optimize and closed_loop:
         tracker.next()
         print("== closed-loop study (beyond the paper: a servo loop instead of the perfect controller)", flush=True)
         if not quick:
@@ -218,7 +222,8 @@ def _optimization(out: Path, quick: bool, key: dict, vib: dict | None = None) ->
     return res
 
 
-CLOSED_LOOP_STEPS = 20      # optimizer steps of each design's refinement with the servo in the loop
+CLOSED_LOOP_STEPS = 40      # optimizer steps of each design's refinement with the servo in the loop
+CLOSED_LOOP_SAMPLES = 20    # random models of both boxes (besides their 32 corners) per comparison
 
 
 def _closed_loop(out: Path, quick: bool, key: dict, opt: dict) -> dict:
@@ -244,7 +249,7 @@ def _closed_loop(out: Path, quick: bool, key: dict, opt: dict) -> dict:
 
         def work(rec=rec, d=d):
             studies = {f"{fc:g}": cl.case(rec, Controller(fc), steps=0 if quick else CLOSED_LOOP_STEPS,
-                                          samples=2 if quick else 200, corners=not quick, fcs=(fc,), ruckig=not quick)
+                                          samples=2 if quick else CLOSED_LOOP_SAMPLES, corners=not quick, fcs=(fc,), ruckig=not quick)
                        for fc in fcs}
             first = studies[f"{fcs[0]:g}"]
             sweep = cl.bandwidth_sweep(rec, first, fcs=(15.0, 40.0) if quick else cl.FIGURE_FCS)

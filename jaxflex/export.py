@@ -31,6 +31,7 @@ UNITS = {"t": "s", "x": "m", "y": "m", "q1": "rad", "q2": "rad", "dq1": "rad/s",
          "ddq1": "rad/s^2", "ddq2": "rad/s^2", "tau1": "N m", "tau2": "N m"}
 RATES_HZ = (1_000, 4_000, 8_000, 10_000)      # the rates controllers commonly take
 DEFAULT_RATE_HZ = 10_000
+EXPORT_DWELL = 0.1          # s: the dwell of the rollout the flexible feedforward is read from (the studies')
 
 
 def sample_times(tf: float, rate: float) -> np.ndarray:
@@ -62,8 +63,9 @@ def feedforward_at(kind: str, robot: Robot, path: Path, profile: Profile, tf: fl
     if kind == "flexible":
         from jaxflex.sweep import default_grid
 
-        grid = grid or default_grid(robot, [tf], 0.01)
-        series = run(path_tables(robot, path), sample_motion(path.length, profile, tf, grid), tf, 0.01, robot, grid)
+        grid = grid or default_grid(robot, [tf], EXPORT_DWELL)
+        series = run(path_tables(robot, path), sample_motion(path.length, profile, tf, grid), tf, EXPORT_DWELL, robot,
+                     grid)
         nodes, tau = np.asarray(series.t), np.asarray(series.tau)
         at = np.clip(np.asarray(t) + advance, 0.0, float(tf))
         return np.column_stack([np.interp(at, nodes, tau[:, i]) for i in range(2)])

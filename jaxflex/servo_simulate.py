@@ -270,7 +270,6 @@ class Carry(NamedTuple):
 def _march(carry: Carry, maps: _Maps, steps: _Steps, servo: Servo, unroll: int):
     """The fine steps of every interval (leaves of ``maps`` (Nc, ...), of ``steps`` (Nc, m, ...)):
     returns the final carry and, per step, the state and the applied torque at its start."""
-    n = maps.k.shape[-1]
     period = 1.0 / servo.rate
 
     def interval(c, inp):
@@ -322,7 +321,6 @@ def _rest(tables: Tables, servo_tables: Tables, s):
 
 def _equilibrium(k, force, servo: Servo, ff):
     """The closed loop's static equilibrium z* (n,) at rest: K z = F + [ff - Kp d; 0]."""
-    n = k.shape[0]
     k_cl = k.at[jnp.arange(2), jnp.arange(2)].add(servo.kp)
     return jnp.linalg.solve(k_cl, force.at[:2].add(ff)), k_cl
 
@@ -466,7 +464,6 @@ def closed_loop(tables: Tables, servo_tables: Tables, samples: MotionSamples, sc
         dz = x[:n] - z_star
         return 0.5 * x[n:] @ m_p @ x[n:] + 0.5 * dz @ ksym @ dz
 
-    ne = n - 2
     elastic_tf = jnp.concatenate([x_tf[2:n], x_tf[n + 2:]])
     low = low_mode_acceleration(rest_c.mass, rest_c.k0, rest_c.c0, rest_c.jx, z_star[2:], elastic_tf)
     t = jnp.arange(n_steps + 1, dtype=float) * h

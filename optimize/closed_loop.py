@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Callable, NamedTuple, Sequence
+from typing import NamedTuple, Sequence
 
 import jax
 import jax.numpy as jnp
@@ -286,7 +286,7 @@ def _perfect(path: Path, law, robot: Robot, payload: float, tf: float, dwell: fl
 
 def refine(x0, robot: Robot, cycle: Cycle, payload: float, tf: float, dwell: float, grid: Grid,
            controller: Controller, reference: dict, torque_bound: float, *, steps: int = 20,
-           learning_rate: float = 0.02, box: Box = Box(), servo_box: ServoBox = ServoBox(), blend: str = "smoothstep",
+           learning_rate: float = 0.05, box: Box = Box(), servo_box: ServoBox = ServoBox(), blend: str = "smoothstep",
            order: int = 3, progress: bool = False):
     """The design x0 refined with the servo in the loop: Adam on ``closed_loop_objective`` over
     ``train_models`` (the nominal model and eight corners of E, payload, bandwidth and rate) at the
@@ -311,7 +311,7 @@ def closed_loop_study(robot: Robot, cycle: Cycle, payload: float, tf: float, dwe
                       law, controller: Controller, *, fcs: Sequence[float] = (15.0, 40.0), steps: int = 0,
                       samples: int = 200, corners: bool = True, box: Box = Box(), servo_box: ServoBox = ServoBox(),
                       blend: str = "smoothstep", order: int = 3, first_mode_hz: float | None = None,
-                      ruckig: bool = True, progress: bool = False) -> dict:
+                      ruckig: bool = True, learning_rate: float = 0.05, progress: bool = False) -> dict:
     """The designs under the servo (module docstring), as a JSON-ready record.
 
     ``design`` (a ``Design`` of the ``blend`` family) with its shaped ``law`` is the perfect
@@ -347,8 +347,9 @@ def closed_loop_study(robot: Robot, cycle: Cycle, payload: float, tf: float, dwe
         i, j = blends.index(best[0]), profiles.index(best[1])
         reference = {k: m[k][i, j] for k in ("residual_energy", "dwell_residual_mm")}
         bound = float(m["max_torque_nm"][blends.index("lame"), profiles.index("poly7")])
-        x, result, trained = refine(design, robot, cycle, payload, tf, dwell, grid, controller, reference, bound, steps=steps,
-                           box=box, servo_box=servo_box, blend=blend, order=order, progress=progress)
+        x, result, trained = refine(design, robot, cycle, payload, tf, dwell, grid, controller, reference, bound,
+                                    steps=steps, learning_rate=learning_rate, box=box, servo_box=servo_box, blend=blend,
+                                    order=order, progress=progress)
         law = shaped(jnp.asarray(x.coef), order, name="optimized")
         rec["refined"] = {"history": [list(map(float, h)) for h in result.history], "steps_run": result.steps_run,
                           "training_models": [w.label for w in trained],

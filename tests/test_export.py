@@ -100,6 +100,7 @@ def test_the_controller_file_states_the_bandwidth_gains_and_every_unit(rigid_fil
     assert set(rec["column_units"]) == set(export.COLUMNS) and rec["units"]["kp"] == "N m/rad"
 
 
+@pytest.mark.xdist_group("commands")        # the 6 kg, 0.43 s programs of the command tests
 def test_the_flexible_feedforward_differs_from_the_rigid_one_by_the_elastic_part():
     """The flexible feedforward (the perfect controller's torque of the elastic model) against the
     rigid one on the same motion at 1 kHz: within 30 % of the peak torque (measured: 20 %, the
