@@ -158,9 +158,6 @@ def closed_loop_section(res: dict) -> str:
              "then compared on the nominal robot, on random models of the robot's box and the controller's box "
              "(fc +-20 %, rate 4-16 kHz, rotor +-10 %) and on their 32 corners. Loops that the sampled PD makes "
              "unstable (the spectral-radius check) are counted and left out, since no trajectory repairs them.", ""]
-    if res.get("quick"):
-        lines += ["(`--quick`: the 6 kg case at 40 Hz without refinement, two random models, no corners: a smoke "
-                  "run, not results.)", ""]
     for case in res["cases"]:
         d = case["dir"]
         for fc, st in case["studies"].items():

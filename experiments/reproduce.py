@@ -63,6 +63,7 @@ def compute(out: str = "results", quick: bool = False, vibration: bool = True, o
     results = {}
     plan = ["kinematics", "natural frequencies"]
     plan += ["vibration study"] * with_vibration + ["full-model check"] * (with_vibration and not quick)
+    closed_loop = closed_loop and not quick       # quick: no closed-loop section (its smoke test is optimize --servo's)
     plan += ["optimization studies"] * optimize + ["closed-loop study"] * (optimize and closed_loop)
     tracker = _Sections(plan, quick)
 
@@ -112,9 +113,8 @@ def compute(out: str = "results", quick: bool = False, vibration: bool = True, o
     if optimize and closed_loop:
         tracker.next()
         print("== closed-loop study (beyond the paper: a servo loop instead of the perfect controller)", flush=True)
-        if not quick:
-            release_compiled()
-        results["closed_loop"] = _closed_loop(out, quick, key, results["optimize"])
+        release_compiled()
+        results["closed_loop"] = _closed_loop(out, key, results["optimize"])
     tracker.next()
     return results
 
@@ -226,20 +226,18 @@ CLOSED_LOOP_STEPS = 40      # optimizer steps of each design's refinement with t
 CLOSED_LOOP_SAMPLES = 20    # random models of both boxes (besides their 32 corners) per comparison
 
 
-def _closed_loop(out: Path, quick: bool, key: dict, opt: dict) -> dict:
+def _closed_loop(out: Path, key: dict, opt: dict) -> dict:
     """The single-payload studies' optimized designs under the servo (``experiments.closed_loop``):
     at each bandwidth of ``closed_loop.FCS`` the design refined with that servo in the loop and
     compared with the paper's combinations and the baselines on the robot's and the controller's
     boxes, then the figure of the nominal residual against the bandwidth. Each case resumes from
-    its JSON; full runs give each case a process of its own. Quick: the 6 kg case at 40 Hz, no
-    refinement, two random models, no corners, no Ruckig (a smoke run)."""
+    its JSON; each case runs in a process of its own."""
     from jaxflex.optimize.closed_loop import Controller
 
     from . import closed_loop as cl
 
-    isolated = (lambda fn, **kw: fn(**kw)) if quick else run_isolated
-    fcs = (40.0,) if quick else cl.FCS
-    res = {"quick": quick, "cases": []}
+    fcs = cl.FCS
+    res = {"cases": []}
     for case in opt["cases"]:
         rec = case["record"]
         if len(rec["payloads"]) != 1:
@@ -248,19 +246,17 @@ def _closed_loop(out: Path, quick: bool, key: dict, opt: dict) -> dict:
         d = out / f"closed_loop_{name}kg"
 
         def work(rec=rec, d=d):
-            studies = {f"{fc:g}": cl.case(rec, Controller(fc), steps=0 if quick else CLOSED_LOOP_STEPS,
-                                          samples=2 if quick else CLOSED_LOOP_SAMPLES, corners=not quick, fcs=(fc,), ruckig=not quick)
-                       for fc in fcs}
+            studies = {f"{fc:g}": cl.case(rec, Controller(fc), steps=CLOSED_LOOP_STEPS, samples=CLOSED_LOOP_SAMPLES,
+                                          corners=True, fcs=(fc,)) for fc in fcs}
             first = studies[f"{fcs[0]:g}"]
-            sweep = cl.bandwidth_sweep(rec, first, fcs=(15.0, 40.0) if quick else cl.FIGURE_FCS)
+            sweep = cl.bandwidth_sweep(rec, first)
             save_figure(cl.figure(sweep, first, case_label(rec["payloads"][0], rec["tf"])), d / "residual_vs_fc.png")
             return {"studies": studies, "sweep": sweep}
 
-        r = resumable(d / "closed_loop.json", key, lambda: isolated(work), f"closed loop {name} kg")
+        r = resumable(d / "closed_loop.json", key, lambda: run_isolated(work), f"closed loop {name} kg")
         res["cases"].append({"dir": d.relative_to(out).as_posix(), "payload": rec["payloads"][0], "tf": rec["tf"],
                              **r})
-        if not quick:
-            release_compiled()
+        release_compiled()
     return res
 
 

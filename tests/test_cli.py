@@ -281,12 +281,7 @@ def test_reproduce_quick_command(tmp_path, capsys):
     assert rich["dwell_residual_mm"]["paper model"]["6 kg, 0.43 s"]["clothoid/trap_1_8"] == \
         vib["case0"]["dwell_residual_mm"]["clothoid"]["trap_1_8"]
     assert not (out_dir / "optimize_0.1kg").exists()          # quick: the 6 kg case only
-    # the closed-loop section: the 6 kg design under a 40 Hz servo beside the paper's combinations
-    closed = json.loads((out_dir / "closed_loop_6kg" / "closed_loop.json").read_text())
-    rows = closed["studies"]["40"]["fcs"]["40"]
-    assert "optimized" in rows and rows["optimized"]["box_models"] == 3 and rows["optimized"]["nominal_um"] > 0
-    assert (out_dir / "closed_loop_6kg" / "residual_vs_fc.png").stat().st_size > 1000
-    assert "## 6. Beyond the paper: under a servo loop" in report
+    assert not (out_dir / "closed_loop_6kg").exists()         # quick: no closed-loop section
     pngs = list((out_dir / "figures").glob("*.png"))
     assert len(pngs) >= 5 and all(p.stat().st_size > 1000 for p in pngs)
     assert not re.search(r"\bnan\b", report, flags=re.I)                 # no NaN in any table

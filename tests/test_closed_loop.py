@@ -87,3 +87,29 @@ def test_the_closed_loop_objective_is_the_engines_closed_loop_and_its_gradient_t
         bump = lambda d: p0._replace(**{field: getattr(p0, field).at[i].add(d)})
         fd = (float(obj(bump(eps))[0]) - float(obj(bump(-eps))[0])) / (2 * eps)
         assert float(getattr(g, field)[i]) == pytest.approx(fd, rel=1e-5, abs=1e-8)
+
+
+def test_the_closed_loop_report_and_figure_render_a_study_record(tmp_path):
+    """The reproduce section's text and figure from a closed-loop record (the keys
+    ``closed_loop_study`` writes): every trajectory's row with its ratios, the unstable count, and a
+    figure with one line per trajectory."""
+    from jaxflex.experiments import closed_loop as exp
+    from jaxflex.experiments.report import closed_loop_section
+
+    row = lambda nominal, worst: {"nominal_um": nominal, "worst_um": worst, "p95_um": worst, "median_um": nominal,
+                                  "max_torque_nm": 70.0, "unstable": 1, "box_worst_um": worst, "box_unstable": 2,
+                                  "box_models": 5, "perfect_um": 3 * nominal, "perfect_max_torque_nm": 70.0,
+                                  "feedforward": "rigid", "ratio_best_paper_nominal": 1.0, "ratio_best_paper_worst": 1.0}
+    study = {"controller": {"fc": 40.0, "rate": 8000.0, "rotor": 0.01, "feedforward": "flexible"}, "samples": 2,
+             "corners": True, "paper": {"40": {"best": "polar/poly7", "dwell_residual_um": {}}},
+             "refined": {"history": [[0, 1.0], [1, -1.0]], "steps_run": 2},
+             "fcs": {"40": {"optimized": row(0.25, 0.46), "polar/poly7 (best paper)": row(1.08, 1.74)}}}
+    text = closed_loop_section({"cases": [{"dir": "closed_loop_6kg", "payload": 6.0, "tf": 0.43,
+                                           "studies": {"40": study}}]})
+    assert "2 of the 5 models' loops unstable" in text and "objective 1.000 -> -1.000" in text
+    assert "| optimized " in text and "closed_loop_6kg/residual_vs_fc.png" in text
+    sweep = {"fcs": [15.0, 40.0], "dwell_residual_um": {"optimized": [1.3, 0.25], "polar/poly7": [9.5, 1.08]}}
+    fig = exp.figure(sweep, study, "6 kg, 0.43 s")
+    assert len(fig.axes[0].get_lines()) == 4          # two trajectories, each with its perfect-controller line
+    fig.savefig(tmp_path / "f.png")
+    assert (tmp_path / "f.png").stat().st_size > 1000
