@@ -93,3 +93,24 @@ def figure(sweep: dict, closed: dict, label: str):
     ax.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
     return fig
+
+
+def reproduce_case(record: dict, out_dir: str, steps: int, samples: int, fcs=FCS, figure_fcs=FIGURE_FCS,
+                   corners: bool = True) -> dict:
+    """One case of reproduce's closed-loop section (a module-level function: reproduce runs it in a
+    process of its own): at each bandwidth of ``fcs`` [Hz] the study's design refined with that
+    servo in the loop (``steps``) and compared on ``samples`` random models and (``corners``) the
+    32 corners (``case``); then the nominal residual at ``figure_fcs`` and its figure, written to
+    ``out_dir/residual_vs_fc.png``. Returns {"studies": fc -> record, "sweep": ``bandwidth_sweep``}."""
+    from pathlib import Path
+
+    from .io import save_figure
+    from .report import case_label
+
+    studies = {f"{fc:g}": case(record, Controller(fc), steps=steps, samples=samples, corners=corners, fcs=(fc,))
+               for fc in fcs}
+    first = studies[f"{fcs[0]:g}"]
+    sweep = bandwidth_sweep(record, first, figure_fcs)
+    save_figure(figure(sweep, first, case_label(record["payloads"][0], record["tf"])),
+                Path(out_dir) / "residual_vs_fc.png")
+    return {"studies": studies, "sweep": sweep}

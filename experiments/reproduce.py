@@ -232,11 +232,8 @@ def _closed_loop(out: Path, key: dict, opt: dict) -> dict:
     compared with the paper's combinations and the baselines on the robot's and the controller's
     boxes, then the figure of the nominal residual against the bandwidth. Each case resumes from
     its JSON; each case runs in a process of its own."""
-    from jaxflex.optimize.closed_loop import Controller
-
     from . import closed_loop as cl
 
-    fcs = cl.FCS
     res = {"cases": []}
     for case in opt["cases"]:
         rec = case["record"]
@@ -244,16 +241,9 @@ def _closed_loop(out: Path, key: dict, opt: dict) -> dict:
             continue
         name = f"{rec['payloads'][0]:g}"
         d = out / f"closed_loop_{name}kg"
-
-        def work(rec=rec, d=d):
-            studies = {f"{fc:g}": cl.case(rec, Controller(fc), steps=CLOSED_LOOP_STEPS, samples=CLOSED_LOOP_SAMPLES,
-                                          corners=True, fcs=(fc,)) for fc in fcs}
-            first = studies[f"{fcs[0]:g}"]
-            sweep = cl.bandwidth_sweep(rec, first)
-            save_figure(cl.figure(sweep, first, case_label(rec["payloads"][0], rec["tf"])), d / "residual_vs_fc.png")
-            return {"studies": studies, "sweep": sweep}
-
-        r = resumable(d / "closed_loop.json", key, lambda: run_isolated(work), f"closed loop {name} kg")
+        r = resumable(d / "closed_loop.json", key,
+                      lambda: run_isolated(cl.reproduce_case, record=rec, out_dir=str(d), steps=CLOSED_LOOP_STEPS,
+                                           samples=CLOSED_LOOP_SAMPLES), f"closed loop {name} kg")
         res["cases"].append({"dir": d.relative_to(out).as_posix(), "payload": rec["payloads"][0], "tf": rec["tf"],
                              **r})
         release_compiled()
