@@ -93,7 +93,7 @@ def test_a_servo_with_bad_settings_is_refused():
             sv.servo_from_bandwidth(robot, PATH, fc, **kw)
 
 
-@pytest.mark.xdist_group("servo-full")
+@pytest.mark.slow      # a full nonlinear run under the servo (50 s); the default suite keeps test_servo_fast's
 def test_the_full_model_under_the_servo_balances_energy_with_the_controllers_work():
     """With no damping, the change of the mechanical energy (kinetic + gravity + strain) over every
     sample period equals the work of the held motor torques, u_k . (q_a(t_k+1) - q_a(t_k)), exactly in
