@@ -197,28 +197,12 @@ def test_optimize_command_writes_its_outputs_and_resumes(tmp_path, capsys):
     assert 20 < np.max(np.abs(rows[:, 9:11])) < 400
     # the rerun with the same directory resumes at step 2 and ends with the same design (the
     # checkpoint holds the optimizer's state only: the rerun skips the box and richer evaluations)
-    # and, with --servo, judges it under a 40 Hz servo (no refinement, the nominal model only) and
-    # exports it for that servo: its gains and the flexible feedforward in the CSV
-    out, err = _run(["optimize", *OPT, "--box-samples", "0", "--richer-modes", "0", "--out", out_dir,
-                     "--json", j2, "--servo", "40", "--servo-steps", "0", "--servo-samples", "0",
-                     "--no-servo-corners", "--servo-fcs"], capsys)
+    _, err = _run(["optimize", *OPT, "--box-samples", "0", "--richer-modes", "0", "--out", out_dir,
+                   "--json", j2], capsys)
     assert "resumed at step 2" in err
     rec2 = json.loads(j2.read_text())
     assert rec2["history"] == rec["history"] and rec2["design"] == rec["design"]
     assert rec2["laws"]["optimized"]["dwell_residual_mm"] == rec["laws"]["optimized"]["dwell_residual_mm"]
-    closed = rec2["closed_loop"]
-    assert list(closed["fcs"]) == ["40"] and closed["controller"]["feedforward"] == "flexible"
-    assert len(closed["paper"]["40"]["dwell_residual_um"]) == 12
-    rows = closed["fcs"]["40"]
-    assert {"optimized", "lame/poly7"} <= set(rows) and any(k.endswith("(best paper)") for k in rows)
-    for v in rows.values():
-        assert v["nominal_um"] > 0 and v["perfect_um"] > 0 and v["unstable"] == 0 and v["box_models"] == 1
-    best = min(closed["paper"]["40"]["dwell_residual_um"].values())
-    assert next(v for k, v in rows.items() if k.endswith("(best paper)"))["nominal_um"] == pytest.approx(best, rel=1e-9)
-    assert "Under the servo" in out and "fc 40 Hz" in out
-    controller = json.loads((out_dir / "controller.json").read_text())
-    assert controller["controller"] == "servo" and controller["fc"] == 40.0 and controller["rate"] == 8000.0
-    assert controller["feedforward"] == "flexible" and min(controller["kp"]) > 0 and min(controller["kd"]) > 0
 
 
 @pytest.mark.xdist_group("commands")
@@ -333,3 +317,29 @@ def test_bad_input_is_rejected_before_anything_compiles(args, named, capsys, com
     assert code == 2, err
     assert err.startswith(f"jaxflex {args[0]}: error: ") and named in err, err
     assert compilations[0] == 0, f"{compilations[0]} programs compiled before rejecting {args}"
+
+
+@pytest.mark.slow      # the closed-loop programs' compiles (about 100 s); the default suite keeps sweep --servo's
+def test_optimize_command_under_a_servo(tmp_path, capsys):
+    """``optimize --servo 40`` (two perfect-controller steps, no refinement, the nominal model only):
+    the closed-loop record with the 12 paper combinations under the servo, every trajectory's row,
+    the best paper combination's the least of the 12, and the export for that servo (its gains, the
+    flexible feedforward)."""
+    out_dir, j2 = tmp_path / "opt", tmp_path / "o2.json"
+    out, _ = _run(["optimize", *OPT, "--box-samples", "0", "--richer-modes", "0", "--out", out_dir,
+                   "--json", j2, "--servo", "40", "--servo-steps", "0", "--servo-samples", "0",
+                   "--no-servo-corners", "--servo-fcs"], capsys)
+    rec2 = json.loads(j2.read_text())
+    closed = rec2["closed_loop"]
+    assert list(closed["fcs"]) == ["40"] and closed["controller"]["feedforward"] == "flexible"
+    assert len(closed["paper"]["40"]["dwell_residual_um"]) == 12
+    rows = closed["fcs"]["40"]
+    assert {"optimized", "lame/poly7"} <= set(rows) and any(k.endswith("(best paper)") for k in rows)
+    for v in rows.values():
+        assert v["nominal_um"] > 0 and v["perfect_um"] > 0 and v["unstable"] == 0 and v["box_models"] == 1
+    best = min(closed["paper"]["40"]["dwell_residual_um"].values())
+    assert next(v for k, v in rows.items() if k.endswith("(best paper)"))["nominal_um"] == pytest.approx(best, rel=1e-9)
+    assert "Under the servo" in out and "fc 40 Hz" in out
+    controller = json.loads((out_dir / "controller.json").read_text())
+    assert controller["controller"] == "servo" and controller["fc"] == 40.0 and controller["rate"] == 8000.0
+    assert controller["feedforward"] == "flexible" and min(controller["kp"]) > 0 and min(controller["kd"]) > 0

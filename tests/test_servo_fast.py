@@ -57,7 +57,7 @@ def test_the_sub_step_maps_are_the_matrix_functions_of_the_free_motor_system():
         assert rel(mp.gs[i], funcs((1 - i / NODES) * h)[1] @ b[:, :2]) < 1e-11
 
 
-@pytest.mark.xdist_group("servo-full")
+@pytest.mark.slow      # a full nonlinear run under the servo (77 s); figures in docs/conventions.md#servo
 def test_the_fast_model_under_the_servo_agrees_with_the_full_model():
     """The same servo (fc 30 Hz, 8 kHz, rigid feedforward, 0.01 kg m^2 rotor) on a small robot (one
     mode per link, 2 kg) along a short move: the fast model's closed-loop metrics against the full
