@@ -88,6 +88,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="integration step [s] (default: 1e-4, converged; see REPORT.md)")
     p.add_argument("--dwell", type=float, default=0.1,
                    help="dwell after the motion, motors holding the place pose [s] (default: %(default)s)")
+    p.add_argument("--repeats", type=int, default=3,
+                   help="sweeps timed after the first, compiling, one; the run time printed is their median "
+                        "(default: %(default)s; 0: the results only, no timing)")
     _add_servo(p)
 
     p = sub.add_parser("optimize", help="optimize the trajectory against the paper and industrial baselines",
@@ -249,7 +252,7 @@ def main(argv=None) -> int:
             from jaxflex.experiments import sweep
 
             sweep.run(args.preset, args.payload, args.tf, args.dt, args.dwell, json_path=args.json,
-                      servo=servo_options(args))
+                      servo=servo_options(args), repeats=args.repeats)
         elif args.command == "optimize":
             from jaxflex.experiments import optimize
 

@@ -1,8 +1,10 @@
 """``jaxflex sweep``: the 12 path-profile combinations simulated for one payload and motion time."""
 from __future__ import annotations
 
+import math
 import time
 
+from jaxflex import checks
 from jaxflex.metrics import METRICS, UNITS
 from jaxflex.robot import cycle_preset, robot_preset
 from jaxflex.servo import cycle_servo, record
@@ -20,22 +22,26 @@ def compute(preset: str = "default", payload: float = 6.0, tf: float = 0.43, dt:
     """Simulate every combination; returns the sweep record (docs/conventions.md#file-formats).
     ``servo``: the motors driven by a servo loop, keyword arguments of ``jaxflex.servo.cycle_servo``
     (fc [Hz], rate [Hz], rotor_inertia [kg m^2], feedforward) for the payload's robot; None: the
-    perfect controller."""
+    perfect controller. ``repeats``: sweeps timed after the first (0: none; the record's run time is then null)."""
     started = time.time()
+    repeats = checks.count("repeats", repeats, minimum=0)
     robot, cycle = robot_preset(preset), cycle_preset(preset)
     controller = None
     if servo is not None:
         options = dict(servo)
         controller = cycle_servo(robot.replace(payload=payload), cycle, options.pop("fc"), **options)
     res = run_sweep(robot, cycle, [Case(payload, tf)],
-                    SweepConfig(dwell=dwell, dt=dt, repeats=repeats, progress=True, servo=controller))
+                    SweepConfig(dwell=dwell, dt=dt, repeats=max(repeats, 1), timed=repeats > 0,
+                                progress=True, servo=controller))
     grid = res.grid
     return {"payload": payload, "tf": tf, "dt": tf / grid.steps, "dwell": dwell, "preset": preset,
             "servo": None if controller is None else record(controller),
             "results": results_table(res, 0),
-            "timing": {"compile_s": res.compile_s, "run_s": res.run_s},
+            "timing": {"compile_s": res.compile_s,
+                       "run_s": res.run_s if math.isfinite(res.run_s) else None},   # None: not timed
             "grid": grid._asdict(), "provenance": provenance(
-                {"preset": preset, "payload": payload, "tf": tf, "dt": dt, "dwell": dwell, "servo": servo}, started)}
+                {"preset": preset, "payload": payload, "tf": tf, "dt": dt, "dwell": dwell, "servo": servo,
+                 "repeats": repeats}, started)}
 
 
 def text(rec: dict) -> str:
@@ -50,14 +56,16 @@ def text(rec: dict) -> str:
         f"{sv['feedforward']} feedforward, Kp {sv['kp'][0]:.4g} N m/rad, Kd {sv['kd'][0]:.4g} N m s/rad")
     return (f"Sweep: payload {rec['payload']:g} kg, tf {rec['tf']:g} s, dt {rec['dt']:.3g} s, dwell "
             f"{rec['dwell']:g} s ({rec['preset']} preset), {control}\n\n" + table(head, rows)
-            + f"\n\ncompile {t['compile_s']:.1f} s, run {t['run_s'] * 1e3:.0f} ms (median)")
+            + (f"\n\ncompile {t['compile_s']:.1f} s, run {t['run_s'] * 1e3:.0f} ms (median)"
+               if t["run_s"] is not None else f"\n\ncompile and first run {t['compile_s']:.1f} s (not timed)"))
 
 
-def run(preset="default", payload=6.0, tf=0.43, dt=None, dwell=0.1, json_path=None, servo=None) -> dict:
+def run(preset="default", payload=6.0, tf=0.43, dt=None, dwell=0.1, json_path=None, servo=None,
+        repeats: int = 3) -> dict:
     """``jaxflex sweep``: the 12 combinations for ``payload`` [kg], ``tf`` [s], optional ``dt`` [s] and
     ``dwell`` [s], under the perfect controller or the ``servo`` (see ``compute``); prints the table
-    and writes the JSON."""
-    rec = compute(preset, payload, tf, dt, dwell, servo=servo)
+    and writes the JSON; ``repeats`` timed sweeps after the first."""
+    rec = compute(preset, payload, tf, dt, dwell, repeats, servo=servo)
     if json_path:                  # the record first: a display problem must not lose the results
         write_json(json_path, rec)
     print(text(rec))

@@ -25,7 +25,7 @@ from jaxflex.robot import Robot, check_reachable, igm
 from jaxflex.runtime.memo import ContentMemo
 from jaxflex.runtime.options import BUILD
 from jaxflex.runtime.threads import host_map
-from jaxflex.servo_linearized import build_servo_tables
+from jaxflex.servo_linearized import servo_coeffs_at
 from jaxflex.workspace import PROBES, FIELDS, Workspace, combine_probes, grid_points, grid_shape
 
 COEFF_CHUNK = sum(SEGMENT_NODES)   # poses per call of the shared coefficient program: one path table
@@ -132,10 +132,12 @@ def build_workspaces(robots: Robot, cycle: Cycle, spacing: float = 0.005) -> Wor
     return _workspaces(robots, trees.unstack(robots), cycle, spacing, stacked=True)
 
 
-_servo_tables = jax.jit(build_servo_tables, compiler_options=BUILD)
+_servo_coeffs = jax.jit(servo_coeffs_at, compiler_options=BUILD)
 
 
 def servo_path_tables(robot: Robot, path: Path) -> Tables:
-    """The servo coefficients (``servo_linearized.ServoCoeffs``) tabulated along the path, on concrete
-    values through one compiled program per blend family."""
-    return _servo_tables(robot, path)
+    """The servo coefficients (``servo_linearized.ServoCoeffs``) tabulated along the path
+    (``servo_linearized.build_servo_tables``) on concrete values: the poses through the program of
+    the blend family (``robot_table_poses``, cheap), the coefficients through one compiled program
+    that every blend family shares (the costly part to compile)."""
+    return Tables(values=_servo_coeffs(robot, *robot_table_poses(robot, path)), breaks=path.breaks)

@@ -311,7 +311,7 @@ def closed_loop_study(robot: Robot, cycle: Cycle, payload: float, tf: float, dwe
                       law, controller: Controller, *, fcs: Sequence[float] = (15.0, 40.0), steps: int = 0,
                       samples: int = 200, corners: bool = True, box: Box = Box(), servo_box: ServoBox = ServoBox(),
                       blend: str = "smoothstep", order: int = 3, first_mode_hz: float | None = None,
-                      ruckig: bool = True, learning_rate: float = 0.05, progress: bool = False) -> dict:
+                      ruckig: bool = True, learning_rate: float = 0.05, seed: int = 0, progress: bool = False) -> dict:
     """The designs under the servo (module docstring), as a JSON-ready record.
 
     ``design`` (a ``Design`` of the ``blend`` family) with its shaped ``law`` is the perfect
@@ -322,7 +322,8 @@ def closed_loop_study(robot: Robot, cycle: Cycle, payload: float, tf: float, dwe
     (rigid feedforward) on the nominal robot; the best of them, its ZV/ZVD versions (first mode
     ``first_mode_hz``), the Ruckig profile on its path and poly7-Lamé (rigid feedforward), and the
     optimized design (the controller's feedforward kind) are then evaluated on the nominal model,
-    ``samples`` random models of both boxes and (``corners``) their 32 corners (``corner_models``),
+    ``samples`` random models of both boxes (drawn with ``seed``) and (``corners``) their 32 corners
+    (``corner_models``),
     beside their perfect-controller residual on the nominal model."""
     from jaxflex.designs import design_path
     from jaxflex.path import make_path
@@ -336,7 +337,7 @@ def closed_loop_study(robot: Robot, cycle: Cycle, payload: float, tf: float, dwe
     sweeps = {fc: paper_under_servo(robot, cycle, payload, tf, dwell, fc, controller, progress) for fc in fc_all}
     rec = {"controller": controller._asdict(), "payload": payload, "tf": tf, "dwell": dwell,
            "box": dataclasses.asdict(box.checked()), "servo_box": dataclasses.asdict(servo_box.checked()),
-           "samples": samples, "corners": bool(corners), "paper": {}, "fcs": {}}
+           "samples": samples, "seed": seed, "corners": bool(corners), "paper": {}, "fcs": {}}
     for fc, (m, blends, profiles, best) in sweeps.items():
         rec["paper"][f"{fc:g}"] = {"best": "/".join(best), "dwell_residual_um": {
             f"{b}/{p}": float(m["dwell_residual_mm"][i, j]) * 1e3 for i, b in enumerate(blends)
@@ -356,7 +357,7 @@ def closed_loop_study(robot: Robot, cycle: Cycle, payload: float, tf: float, dwe
                           "torque_bound_nm": bound, "design": {"corners": [
                               {"d_m": float(x.d[k]), "e_m": float(x.e[k]), "n": float(x.n[k])} for k in range(2)],
                               "coef": np.asarray(x.coef).tolist()}}
-    which = (random_models(payload, box, servo_box, samples) if samples else (ServoModel(ModelId(float(payload))),))
+    which = (random_models(payload, box, servo_box, samples, seed) if samples else (ServoModel(ModelId(float(payload))),))
     if corners:
         which = which + corner_models(payload, box, servo_box)
     opt_path = design_path(cycle, x, blend)

@@ -130,7 +130,8 @@ def test_sweep_command_under_a_servo(tmp_path, capsys):
     test_servo_fast.py's), far below the perfect controller's 67 um (the servo damps the modes that
     involve the motors)."""
     path = tmp_path / "s.json"
-    out, _ = _run(["sweep", "--payload", "0.1", "--tf", "0.3", "--servo", "40", "--json", path], capsys)
+    out, _ = _run(["sweep", "--payload", "0.1", "--tf", "0.3", "--servo", "40", "--repeats", "0",
+                   "--json", path], capsys)
     rec = json.loads(path.read_text())
     sv = rec["servo"]
     assert sv["fc"] == 40.0 and sv["rate"] == 8000.0 and sv["rotor_inertia"] == 0.01 and sv["feedforward"] == "rigid"
@@ -303,6 +304,7 @@ def compilations():
 @pytest.mark.parametrize("args, named", [
     (["sweep", "--tf", "-1"], "tf"), (["sweep", "--tf", "nan"], "tf"), (["sweep", "--dwell", "0"], "dwell"),
     (["sweep", "--dt", "inf"], "dt"), (["sweep", "--payload", "-2"], "payload"),
+    (["sweep", "--repeats", "-1"], "repeats"),
     (["optimize", "--tf", "-1"], "tf"), (["optimize", "--tf", "inf"], "tf"), (["optimize", "--steps", "-3"], "steps"),
     (["optimize", "--lr", "0"], "learning_rate"), (["optimize", "--lr", "nan"], "learning_rate"),
     (["optimize", "--payload", "0"], "payloads"), (["optimize", "--payload", "nan"], "payloads"),
