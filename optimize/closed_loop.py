@@ -191,8 +191,11 @@ def summary(metrics: dict) -> dict:
 
 def train_models(payload: float, box: Box, servo_box: ServoBox) -> tuple:
     """The closed-loop training models: the nominal one, then the corners of E, the payload and the
-    achieved bandwidth with the rate at its low end (the longest hold) and at its high end. The
-    rotor's and the rate's effects are smaller (``corner_models`` checks them). 9 ``ServoModel``s."""
+    achieved bandwidth with the rate at its low end (the longest hold) and at its high end, the
+    rotor at the payload's side of its box: a heavier payload with a heavier rotor (and a lighter
+    with a lighter) is the largest inertia error of the feedforward's model, the box's worst case
+    under a slow servo (at 0.1 kg the rotor is most of the motors' inertia; at 6 kg the payload).
+    ``corner_models`` checks the other combinations. 9 ``ServoModel``s."""
     b, sb = box.checked(), servo_box.checked()
     out = [ServoModel(ModelId(float(payload)))]
     for k, ps, f, rate in ((1 - b.young, 1 - b.payload, 1 - sb.fc, sb.rates[0]),
@@ -203,7 +206,9 @@ def train_models(payload: float, box: Box, servo_box: ServoBox) -> tuple:
                            (1 - b.young, 1 + b.payload, 1 - sb.fc, sb.rates[0]),
                            (1 + b.young, 1 - b.payload, 1 - sb.fc, sb.rates[1]),
                            (1 + b.young, 1 + b.payload, 1 + sb.fc, sb.rates[0])):
-        out.append(ServoModel(ModelId(float(payload), float(ps), float(k), b.damping[0]), float(f), float(rate)))
+        rs = 1 + b.rotor * np.sign(ps - 1)
+        out.append(ServoModel(ModelId(float(payload), float(ps), float(k), b.damping[0], 0.0, 0.0, float(rs)),
+                              float(f), float(rate)))
     return tuple(out)
 
 
@@ -289,9 +294,9 @@ def refine(x0, robot: Robot, cycle: Cycle, payload: float, tf: float, dwell: flo
            learning_rate: float = 0.05, box: Box = Box(), servo_box: ServoBox = ServoBox(), blend: str = "smoothstep",
            order: int = 3, progress: bool = False):
     """The design x0 refined with the servo in the loop: Adam on ``closed_loop_objective`` over
-    ``train_models`` (the nominal model and eight corners of E, payload, bandwidth and rate) at the
-    controller's bandwidth, the gradient through the closed-loop rollouts (one program, reverse
-    mode). Returns (design, ``OptResult``, the training models kept: ``closed_loop_objective``)."""
+    ``train_models`` (the nominal model and eight corners of E, payload with the rotor, bandwidth and
+    rate) at the controller's bandwidth, the gradient through the closed-loop rollouts (one
+    program, reverse mode). Returns (design, ``OptResult``, the training models kept: ``closed_loop_objective``)."""
     from .config import OptimizerConfig
     from .gradient import OneProgram
     from .loop import minimize
