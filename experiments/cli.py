@@ -165,6 +165,10 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--servo-steps", type=int, default=20, metavar="N",
                    help="optimizer steps with the servo in the loop (0: the perfect controller's design "
                         "as is; default: %(default)s)")
+    g.add_argument("--servo-scenarios", type=int, default=6, metavar="N",
+                   help="models added to the refinement's training set: those on which the design does worst "
+                        "among 64 random models of both boxes (apart from the evaluation's) and the 32 "
+                        "corners (0: the nine fixed training models only; default: %(default)s)")
     g.add_argument("--servo-samples", type=int, default=200, metavar="N",
                    help="random models of both boxes each trajectory is evaluated on under the servo "
                         "(default: %(default)s)")
@@ -265,7 +269,8 @@ def main(argv=None) -> int:
                 closed = None
                 if args.servo is not None:
                     closed = {**servo_options(args), "steps": args.servo_steps, "samples": args.servo_samples,
-                              "fcs": tuple(args.servo_fcs), "corners": args.servo_corners}
+                              "fcs": tuple(args.servo_fcs), "corners": args.servo_corners,
+                              "scenarios": args.servo_scenarios}
                 optimize.run(args.preset, tuple(args.payload), args.tf, out=args.out, json_path=args.json,
                              verify=args.verify, config=dataclasses.replace(config, free_path=args.free_path),
                              export_rate=args.export_rate, closed_loop=closed)

@@ -15,6 +15,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxflex import checks
 from jaxflex.model_sets import build_model
 from jaxflex.optimize.config import StudyConfig
 from jaxflex.export import DEFAULT_RATE_HZ as CSV_RATE_HZ, write_controller_files
@@ -297,7 +298,8 @@ def closed_loop_section(study, robot, cycle, payload: float, tf: float, options:
     rec = closed_loop_study(robot, cycle, payload, tf, 0.1, study.grid, study.design, study.candidates["optimized"].law,
                             controller, fcs=options["fcs"], steps=options["steps"], samples=options["samples"],
                             corners=options["corners"], box=config.box, blend=config.train.blend, order=order,
-                            first_mode_hz=study.first_mode_hz[0], ruckig=config.ruckig, progress=True)
+                            first_mode_hz=study.first_mode_hz[0], ruckig=config.ruckig,
+                            scenarios=options.get("scenarios", 6), progress=True)
     path, law = study.paths["optimized"], study.candidates["optimized"].law
     if "refined" in rec:
         from jaxflex.designs import design as make_design
@@ -341,11 +343,15 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, out=None, verify=False, 
     """Run the study (``optimize_design`` with ``config``) and return its JSON record; with ``out``
     also write the checkpoint (resumable), ``trajectory.csv`` and ``controller.json``
     (``jaxflex.export``, at ``export_rate`` [Hz]), the figures and ``optimize.json`` there. With
-    ``closed_loop`` (fc, rate, rotor_inertia, feedforward, steps, samples, fcs, corners) the design
+    ``closed_loop`` (fc, rate, rotor_inertia, feedforward, steps, samples, fcs, corners, scenarios) the design
     is then refined and compared under the servo (``optimize.closed_loop.closed_loop_study``, the
     record's "closed_loop"; the first payload), and the export is the refined design's for that
     servo."""
     started = time.time()
+    if closed_loop is not None:          # before the perfect controller's study: a bad count fails now
+        for name in ("steps", "samples", "scenarios"):
+            if name in closed_loop:
+                checks.count(f"servo {name}", closed_loop[name], minimum=0)
     robot, cycle = robot_preset(preset), cycle_preset(preset)
     ckpt = None
     if out:

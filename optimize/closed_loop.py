@@ -37,6 +37,7 @@ from jaxflex.simulate import Grid
 from jaxflex.uncertainty import Box, ModelId
 
 DEFAULT_RATE_HZ = 8000.0
+SCENARIO_SEED = 1000        # the refinement's scenario pool: random models apart from the evaluation's (seed 0)
 DEFAULT_ROTOR = 0.01        # kg m^2
 
 
@@ -212,6 +213,23 @@ def train_models(payload: float, box: Box, servo_box: ServoBox) -> tuple:
     return tuple(out)
 
 
+def worst_models(residual, which: Sequence[ServoModel], k: int, exclude: Sequence[ServoModel] = ()) -> tuple:
+    """The ``k`` models of ``which`` with the largest residuals (``residual``: one value per model,
+    NaN for an unstable loop, left out), largest first, skipping those in ``exclude``."""
+    r = np.asarray(residual, dtype=float)
+    if r.shape != (len(which),):
+        raise ValueError(f"{r.shape[0] if r.ndim else 0} residuals for {len(which)} models")
+    seen = set(exclude)
+    out = []
+    for i in np.argsort(-np.where(np.isnan(r), -np.inf, r), kind="stable"):
+        if len(out) == k or np.isnan(r[i]):
+            break
+        if which[i] not in seen:
+            out.append(which[i])
+            seen.add(which[i])
+    return tuple(out)
+
+
 def closed_loop_objective(x0, robot: Robot, cycle: Cycle, tf: float, dwell: float, grid: Grid, fc: float,
                           which: Sequence[ServoModel], reference: dict, torque_bound: float, *,
                           feedforward: str = "flexible", rate: float = DEFAULT_RATE_HZ, rotor: float = DEFAULT_ROTOR,
@@ -292,17 +310,33 @@ def _perfect(path: Path, law, robot: Robot, payload: float, tf: float, dwell: fl
 def refine(x0, robot: Robot, cycle: Cycle, payload: float, tf: float, dwell: float, grid: Grid,
            controller: Controller, reference: dict, torque_bound: float, *, steps: int = 20,
            learning_rate: float = 0.05, box: Box = Box(), servo_box: ServoBox = ServoBox(), blend: str = "smoothstep",
-           order: int = 3, progress: bool = False):
+           order: int = 3, scenarios: int = 6, pool: int = 64, pool_seed: int = SCENARIO_SEED,
+           progress: bool = False):
     """The design x0 refined with the servo in the loop: Adam on ``closed_loop_objective`` over
     ``train_models`` (the nominal model and eight corners of E, payload with the rotor, bandwidth and
-    rate) at the controller's bandwidth, the gradient through the closed-loop rollouts (one
-    program, reverse mode). Returns (design, ``OptResult``, the training models kept: ``closed_loop_objective``)."""
+    rate) and ``scenarios`` more: the models on which x0 does worst among ``pool`` random models
+    of both boxes (drawn with ``pool_seed``, apart from the evaluation's) and the 32 corners (a
+    scenario set for the worst case: the fixed corners miss the box's worst combinations, e.g. a
+    rotor error at 0.1 kg), at the controller's bandwidth, the gradient through the closed-loop
+    rollouts (one program, reverse mode). Returns (design, ``OptResult``, the training models
+    kept: ``closed_loop_objective``)."""
+    from jaxflex.designs import design_path
+    from jaxflex.profiles import shaped
+
     from .config import OptimizerConfig
     from .gradient import OneProgram
     from .loop import minimize
     from .objective import decode
 
+    scenarios = checks.count("scenarios", scenarios, minimum=0)
     which = train_models(payload, box, servo_box)
+    if scenarios:
+        candidates = random_models(payload, box, servo_box, checks.count("pool", pool, minimum=0),
+                                   pool_seed)[1:] + corner_models(payload, box, servo_box)
+        trial = Trajectory(design_path(cycle, x0, blend), shaped(jnp.asarray(x0.coef), order), controller.feedforward)
+        met = evaluate({"design": trial}, robot.replace(payload=payload), cycle, tf, dwell, grid, controller.fc,
+                       candidates, rate=controller.rate, rotor=controller.rotor, progress=progress)["design"]
+        which = which + worst_models(met["dwell_residual_mm"], candidates, scenarios, exclude=which)
     objective, p0, which = closed_loop_objective(x0, robot.replace(payload=payload), cycle, tf, dwell, grid, controller.fc,
                                           which, reference, torque_bound, feedforward=controller.feedforward,
                                           rate=controller.rate, rotor=controller.rotor, blend=blend, order=order)
@@ -316,7 +350,8 @@ def closed_loop_study(robot: Robot, cycle: Cycle, payload: float, tf: float, dwe
                       law, controller: Controller, *, fcs: Sequence[float] = (15.0, 40.0), steps: int = 0,
                       samples: int = 200, corners: bool = True, box: Box = Box(), servo_box: ServoBox = ServoBox(),
                       blend: str = "smoothstep", order: int = 3, first_mode_hz: float | None = None,
-                      ruckig: bool = True, learning_rate: float = 0.05, seed: int = 0, progress: bool = False) -> dict:
+                      ruckig: bool = True, learning_rate: float = 0.05, seed: int = 0, scenarios: int = 6,
+                      progress: bool = False) -> dict:
     """The designs under the servo (module docstring), as a JSON-ready record.
 
     ``design`` (a ``Design`` of the ``blend`` family) with its shaped ``law`` is the perfect
@@ -355,7 +390,7 @@ def closed_loop_study(robot: Robot, cycle: Cycle, payload: float, tf: float, dwe
         bound = float(m["max_torque_nm"][blends.index("lame"), profiles.index("poly7")])
         x, result, trained = refine(design, robot, cycle, payload, tf, dwell, grid, controller, reference, bound,
                                     steps=steps, learning_rate=learning_rate, box=box, servo_box=servo_box, blend=blend,
-                                    order=order, progress=progress)
+                                    order=order, scenarios=scenarios, progress=progress)
         law = shaped(jnp.asarray(x.coef), order, name="optimized")
         rec["refined"] = {"history": [list(map(float, h)) for h in result.history], "steps_run": result.steps_run,
                           "training_models": [w.label for w in trained],

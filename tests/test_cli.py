@@ -307,6 +307,7 @@ def compilations():
     (["sweep", "--repeats", "-1"], "repeats"),
     (["optimize", "--tf", "-1"], "tf"), (["optimize", "--tf", "inf"], "tf"), (["optimize", "--steps", "-3"], "steps"),
     (["optimize", "--lr", "0"], "learning_rate"), (["optimize", "--lr", "nan"], "learning_rate"),
+    (["optimize", "--servo", "40", "--servo-scenarios", "-1"], "scenarios"),
     (["optimize", "--payload", "0"], "payloads"), (["optimize", "--payload", "nan"], "payloads"),
     (["optimize", "--coef", "0"], "n_coef"), (["optimize", "--cycle-time", "0.4", "-0.3"], "tfs"),
     (["optimize", "--cycle-time", "0.4", "--steps", "-1"], "steps"),

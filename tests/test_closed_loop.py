@@ -34,6 +34,25 @@ def test_the_box_models_scale_the_gains_for_the_achieved_bandwidth_and_the_rotor
     assert len(set(cl.corner_models(6.0, Box(), cl.ServoBox()))) == 32
 
 
+def test_the_training_set_pairs_payload_and_rotor_and_the_scenarios_are_the_worst_stable_models():
+    """The nine training models: the nominal one and eight corners with the rotor on the payload's
+    side (a heavier payload with a heavier rotor: the feedforward's largest inertia error). The
+    refinement's scenarios: the k largest residuals, largest first, unstable loops (NaN) and
+    models already trained on left out."""
+    train = cl.train_models(0.1, Box(), cl.ServoBox())
+    assert train[0] == cl.ServoModel(ModelId(0.1)) and len(set(train)) == 9
+    for w in train[1:]:
+        assert np.sign(w.model.rotor_scale - 1) == np.sign(w.model.payload_scale - 1) != 0, w
+        assert abs(w.model.rotor_scale - 1) == pytest.approx(Box().rotor, rel=1e-12)
+    which = cl.random_models(0.1, Box(), cl.ServoBox(), 5, seed=2)
+    r = np.array([1.0, np.nan, 3.0, 2.0, 5.0, 4.0])
+    assert cl.worst_models(r, which, 3) == (which[4], which[5], which[2])
+    assert cl.worst_models(r, which, 3, exclude=(which[5],)) == (which[4], which[2], which[3])
+    assert cl.worst_models(r, which, 9) == tuple(which[i] for i in (4, 5, 2, 3, 0))     # never the NaN
+    with pytest.raises(ValueError, match="residuals"):
+        cl.worst_models(r[:3], which, 1)
+
+
 def test_unstable_loops_of_the_box_are_found_and_left_out():
     """At 6 kg the sampled loop at 4 kHz is unstable from fc 18 Hz on (spectral radius 1.08: a mode
     growing by 10^71 over the run), while 15 Hz at 8 kHz is stable enough to simulate. ``stable``
