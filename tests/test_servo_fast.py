@@ -24,53 +24,51 @@ CYCLE = cycle_preset()
 PATH = make_path(CYCLE, "lame", 0.025)
 
 
-@pytest.mark.parametrize("payload", [0.1, 6.0])
-def test_the_tables_at_the_place_are_the_full_models_linearization_at_rest_with_the_motors_free(payload):
-    """The fast closed loop's matrices at rest at the place (the path tables and the servo tables at
-    the path's end) against ``servo.rest_linearization``: the full model's reduced equations
-    differentiated there by automatic differentiation, motors included, about the static
-    equilibrium under gravity (the tables linearize about the undeflected links, so the two differ
-    by the static sag's share: measured 1e-5 (0.1 kg) and 7e-5 (6 kg) of the mass matrix, 3e-4 of
-    the motors' block of the stiffness). A motor inertia, stiffness or mass a few percent off
-    misses by percents."""
-    r = robot_preset("default", payload=payload).replace(rotor_inertia=0.01)
-    qa = igm(r, jnp.asarray(CYCLE.place, dtype=float))
-    m, k, c, *_ = jax.jit(_rest)(path_tables(r, PATH), servo_path_tables(r, PATH), PATH.length)
-    mass, damp, stiff = (np.asarray(a) for a in sv.rest_linearization(r, qa))
-    np.testing.assert_allclose(np.asarray(m), mass, rtol=0, atol=1e-3 * np.max(np.abs(mass)))
-    np.testing.assert_allclose(np.asarray(m)[:2, :2], mass[:2, :2], rtol=0,
-                               atol=1e-3 * np.max(np.abs(mass[:2, :2])))       # the motors' block
-    np.testing.assert_allclose(np.asarray(k), stiff, rtol=0, atol=1e-9 * np.max(np.abs(stiff)))
-    np.testing.assert_allclose(np.asarray(k)[:, :2], stiff[:, :2], rtol=0,
-                               atol=1e-3 * np.max(np.abs(stiff[:, :2])))       # the motors' columns
-    np.testing.assert_allclose(np.asarray(c), damp, rtol=0, atol=1e-9 * np.max(np.abs(stiff)))
-
-
-@pytest.mark.parametrize("payload", [0.1, 6.0])
-def test_the_closed_loops_rest_at_the_place_is_the_full_models_static_equilibrium(payload):
-    """The closed loop's static equilibrium at the place (where every rollout starts and against
-    which the dwell residual is measured), fc 15 Hz, rigid feedforward: the motors sit off their
-    reference by d, where the full model's static torque at qa + d (``servo.static_torque``, the
-    links at their sag) equals the feedforward minus Kp d, solved here by Newton's method on the
-    full model; the links at that sag. Measured: d agrees to 1e-5 (0.1 kg) and 6e-5 (6 kg) of
-    itself. A gain or static force a few percent off moves d by percents."""
+@jax.jit
+def _full_model_at_rest(robot, qa, kp):
+    """The full model at rest at the motor reference qa under a PD of stiffness kp with the rigid
+    feedforward: (feedforward, the motors' offset d solved by Newton on the full model's static
+    torque, the torque balance left, the links' sag there, the linearization about the sag)."""
     from jaxflex.rigid import rigid_torques
 
+    ff = rigid_torques(robot, qa, jnp.zeros(2), jnp.zeros(2))
+    gap = lambda d: sv.static_torque(robot, qa + d) - ff + kp * d
+    d = jax.lax.fori_loop(0, 3, lambda _, d: d - jnp.linalg.solve(jax.jacfwd(gap)(d), gap(d)), jnp.zeros(2))
+    return ff, d, gap(d), mdl.static_equilibrium(robot, qa + d), sv.rest_linearization(robot, qa)
+
+
+@pytest.mark.parametrize("payload", [0.1, 6.0])
+def test_the_closed_loop_at_rest_at_the_place_is_the_full_models(payload):
+    """At the place, where every rollout ends and the dwell residual is measured, fc 15 Hz, rigid
+    feedforward, the fast closed loop (the path tables and the servo tables at the path's end)
+    against the full model:
+
+    - its matrices against ``servo.rest_linearization`` (the full model's reduced equations
+      differentiated with the motors free, about the static equilibrium under gravity; the tables
+      linearize about the undeflected links, so the two differ by the sag's share: measured 1e-5
+      (0.1 kg) and 7e-5 (6 kg) of the mass matrix, 3e-4 of the motors' block of the stiffness);
+    - its static equilibrium (the dwell residual's reference): the motors sit off their reference
+      by d where the full model's static torque at qa + d equals the feedforward minus Kp d,
+      solved here by Newton's method, d agreeing to 1e-5 (0.1 kg) and 6e-5 (6 kg) of itself, and
+      the links at that sag.
+
+    A motor inertia, stiffness, gain or static force a few percent off misses by percents."""
     robot = robot_preset("default", payload=payload)
     s = sv.servo_from_bandwidth(robot, PATH, 15.0, rate=8000.0)
     r = sv.with_rotor(robot, s)
     qa = igm(r, jnp.asarray(CYCLE.place, dtype=float))
-    ff = rigid_torques(r, qa, jnp.zeros(2), jnp.zeros(2))
-    _, k, _, force, *_ = jax.jit(_rest)(path_tables(r, PATH), servo_path_tables(r, PATH), PATH.length)
-    z, _ = _equilibrium(k, force, s, ff)
-    gap = lambda d: sv.static_torque(r, qa + d) - ff + s.kp * d
-    d = jnp.zeros(2)
-    for _ in range(4):
-        d = d - jnp.linalg.solve(jax.jacfwd(gap)(d), gap(d))
-    assert float(jnp.max(jnp.abs(gap(d)))) < 1e-9 * float(jnp.max(jnp.abs(ff)))
+    m, k, c, force, *_ = jax.jit(_rest)(path_tables(r, PATH), servo_path_tables(r, PATH), PATH.length)
+    ff, d, left, sag, (mass, damp, stiff) = _full_model_at_rest(r, qa, s.kp)
+    mass, damp, stiff, m, k, c = (np.asarray(a) for a in (mass, damp, stiff, m, k, c))
+    np.testing.assert_allclose(m, mass, rtol=0, atol=1e-3 * np.max(np.abs(mass)))
+    np.testing.assert_allclose(m[:2, :2], mass[:2, :2], rtol=0, atol=1e-3 * np.max(np.abs(mass[:2, :2])))
+    np.testing.assert_allclose(k, stiff, rtol=0, atol=1e-9 * np.max(np.abs(stiff)))
+    np.testing.assert_allclose(k[:, :2], stiff[:, :2], rtol=0, atol=1e-3 * np.max(np.abs(stiff[:, :2])))
+    np.testing.assert_allclose(c, damp, rtol=0, atol=1e-9 * np.max(np.abs(stiff)))
+    z, _ = _equilibrium(jnp.asarray(k), force, s, ff)
+    assert float(jnp.max(jnp.abs(left))) < 1e-9 * float(jnp.max(jnp.abs(ff)))
     np.testing.assert_allclose(np.asarray(z[:2]), np.asarray(d), rtol=0, atol=1e-3 * float(jnp.max(jnp.abs(d))))
-    sag = np.asarray(mdl.static_equilibrium(r, qa + d))
-    np.testing.assert_allclose(np.asarray(z[2:]), sag, rtol=0, atol=1e-3 * np.max(np.abs(sag)))
+    np.testing.assert_allclose(np.asarray(z[2:]), np.asarray(sag), rtol=0, atol=1e-3 * float(jnp.max(jnp.abs(sag))))
 
 
 def test_the_sub_step_maps_are_the_matrix_functions_of_the_free_motor_system():
