@@ -363,8 +363,9 @@ def closed_loop_study(robot: Robot, cycle: Cycle, payload: float, tf: float, dwe
     ``first_mode_hz``), the Ruckig profile on its path and poly7-Lamé (rigid feedforward), and the
     optimized design (the controller's feedforward kind) are then evaluated on the nominal model,
     ``samples`` random models of both boxes (drawn with ``seed``) and (``corners``) their 32 corners
-    (``corner_models``),
-    beside their perfect-controller residual on the nominal model."""
+    (``corner_models``), beside their perfect-controller residual on the nominal model. The
+    refinement's scenarios come from its own pool (``refine``) and the corners, so the random models
+    stay unseen, while the corners may have been trained on."""
     from jaxflex.designs import design_path
     from jaxflex.path import make_path
     from jaxflex.profiles import make_profile, shaped
