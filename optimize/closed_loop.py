@@ -194,9 +194,10 @@ def train_models(payload: float, box: Box, servo_box: ServoBox) -> tuple:
     """The closed-loop training models: the nominal one, then the corners of E, the payload and the
     achieved bandwidth with the rate at its low end (the longest hold) and at its high end, the
     rotor at the payload's side of its box: a heavier payload with a heavier rotor (and a lighter
-    with a lighter) is the largest inertia error of the feedforward's model, the box's worst case
-    under a slow servo (at 0.1 kg the rotor is most of the motors' inertia; at 6 kg the payload).
-    ``corner_models`` checks the other combinations. 9 ``ServoModel``s."""
+    with a lighter), the largest inertia error of the feedforward's model. At 0.1 kg, where the
+    rotor is most of the motors' inertia, those are the box's worst models under a slow servo; at
+    6 kg the payload error dominates and the worst models found had the rotor on the other side,
+    which ``refine``'s scenarios add. ``corner_models`` checks every combination. 9 ``ServoModel``s."""
     b, sb = box.checked(), servo_box.checked()
     out = [ServoModel(ModelId(float(payload)))]
     for k, ps, f, rate in ((1 - b.young, 1 - b.payload, 1 - sb.fc, sb.rates[0]),
