@@ -37,6 +37,7 @@ def _full_model_at_rest(robot, qa, kp):
     return ff, d, gap(d), mdl.static_equilibrium(robot, qa + d), sv.rest_linearization(robot, qa)
 
 
+@pytest.mark.xdist_group("servo-rest")      # both payloads on one worker: one compile of the full model's side
 @pytest.mark.parametrize("payload", [0.1, 6.0])
 def test_the_closed_loop_at_rest_at_the_place_is_the_full_models(payload):
     """At the place, where every rollout ends and the dwell residual is measured, fc 15 Hz, rigid
