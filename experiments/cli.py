@@ -10,7 +10,7 @@ import sys
 import traceback
 
 from jaxflex.names import DESIGN_BLENDS, PRESETS
-from jaxflex.optimize.config import ROBUST_POWER, TRAINING_SETS, StudyConfig
+from jaxflex.optimize.config import ROBUST_POWER, SCENARIO_POOL, SCENARIOS, TRAINING_SETS, StudyConfig
 from jaxflex.uncertainty import Box
 
 STUDY = StudyConfig()       # the defaults of ``jaxflex optimize`` (this module imports no JAX)
@@ -165,9 +165,9 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--servo-steps", type=int, default=20, metavar="N",
                    help="optimizer steps with the servo in the loop (0: the perfect controller's design "
                         "as is; default: %(default)s)")
-    g.add_argument("--servo-scenarios", type=int, default=6, metavar="N",
+    g.add_argument("--servo-scenarios", type=int, default=SCENARIOS, metavar="N",
                    help="models added to the refinement's training set: those on which the design does worst "
-                        "among 64 random models of both boxes (apart from the evaluation's) and the 32 "
+                        f"among {SCENARIO_POOL} random models of both boxes (apart from the evaluation's) and the 32 "
                         "corners (0: the nine fixed training models only; default: %(default)s)")
     g.add_argument("--servo-samples", type=int, default=200, metavar="N",
                    help="random models of both boxes each trajectory is evaluated on under the servo "

@@ -288,6 +288,7 @@ def closed_loop_section(study, robot, cycle, payload: float, tf: float, options:
     (its record, (path, law, servo) of the trajectory to export)."""
     from jaxflex.designs import design_path
     from jaxflex.optimize.closed_loop import Controller, closed_loop_study
+    from jaxflex.optimize.config import SCENARIOS
     from jaxflex.profiles import shaped
     from jaxflex.servo import cycle_servo
 
@@ -299,7 +300,7 @@ def closed_loop_section(study, robot, cycle, payload: float, tf: float, options:
                             controller, fcs=options["fcs"], steps=options["steps"], samples=options["samples"],
                             corners=options["corners"], box=config.box, blend=config.train.blend, order=order,
                             first_mode_hz=study.first_mode_hz[0], ruckig=config.ruckig,
-                            scenarios=options.get("scenarios", 6), progress=True)
+                            scenarios=options.get("scenarios", SCENARIOS), progress=True)
     path, law = study.paths["optimized"], study.candidates["optimized"].law
     if "refined" in rec:
         from jaxflex.designs import design as make_design

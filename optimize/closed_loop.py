@@ -36,6 +36,8 @@ from jaxflex.servo import Servo, cycle_servo, feedforward_advance, with_rotor
 from jaxflex.simulate import Grid
 from jaxflex.uncertainty import Box, ModelId
 
+from .config import SCENARIO_POOL, SCENARIOS
+
 DEFAULT_RATE_HZ = 8000.0
 SCENARIO_SEED = 1000        # the refinement's scenario pool: random models apart from the evaluation's (seed 0)
 DEFAULT_ROTOR = 0.01        # kg m^2
@@ -311,7 +313,7 @@ def _perfect(path: Path, law, robot: Robot, payload: float, tf: float, dwell: fl
 def refine(x0, robot: Robot, cycle: Cycle, payload: float, tf: float, dwell: float, grid: Grid,
            controller: Controller, reference: dict, torque_bound: float, *, steps: int = 20,
            learning_rate: float = 0.05, box: Box = Box(), servo_box: ServoBox = ServoBox(), blend: str = "smoothstep",
-           order: int = 3, scenarios: int = 6, pool: int = 64, pool_seed: int = SCENARIO_SEED,
+           order: int = 3, scenarios: int = SCENARIOS, pool: int = SCENARIO_POOL, pool_seed: int = SCENARIO_SEED,
            progress: bool = False):
     """The design x0 refined with the servo in the loop: Adam on ``closed_loop_objective`` over
     ``train_models`` (the nominal model and eight corners of E, payload with the rotor, bandwidth and
@@ -351,7 +353,7 @@ def closed_loop_study(robot: Robot, cycle: Cycle, payload: float, tf: float, dwe
                       law, controller: Controller, *, fcs: Sequence[float] = (15.0, 40.0), steps: int = 0,
                       samples: int = 200, corners: bool = True, box: Box = Box(), servo_box: ServoBox = ServoBox(),
                       blend: str = "smoothstep", order: int = 3, first_mode_hz: float | None = None,
-                      ruckig: bool = True, learning_rate: float = 0.05, seed: int = 0, scenarios: int = 6,
+                      ruckig: bool = True, learning_rate: float = 0.05, seed: int = 0, scenarios: int = SCENARIOS,
                       progress: bool = False) -> dict:
     """The designs under the servo (module docstring), as a JSON-ready record.
 

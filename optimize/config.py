@@ -21,6 +21,8 @@ from jaxflex.names import DESIGN_BLENDS
 from jaxflex.uncertainty import Box
 
 TRAINING_SETS = ("box", "nominal", "spanning", "perturbed")
+SCENARIOS = 6                      # worst-case scenario models added to the servo refinement's training set
+SCENARIO_POOL = 64                 # random models of both boxes they are chosen from (with the 32 corners)
 ROBUST_POWER = 8.0                  # a power mean of this order over the training models: a smooth worst case
 BLEND_FAMILY = "smoothstep"         # the optimized design's default blend family (d, e per corner; G4 joins)
 LAW_ORDERS = (2, 3, 4)
