@@ -111,11 +111,15 @@ def midpoint_pose(robot: Robot, path: Path) -> jax.Array:
     return igm(robot, path_frame(path, 0.5 * path.length).pos)
 
 
+# one program per robot shape, not eager operations (the rigid model's derivatives) at every call
+_midpoint_inertia = jax.jit(lambda robot, path: jnp.mean(jnp.diag(rigid_inertia(robot, midpoint_pose(robot, path)))))
+
+
 def bandwidth_gains(robot: Robot, path: Path, fc, zeta=ZETA) -> tuple:
     """(Kp, Kd) (2,) each from the closed-loop bandwidth fc [Hz] and damping ratio zeta: J the mean of
     the diagonal of ``rigid_inertia`` (the robot's rotor included) at ``midpoint_pose``,
     Kp = J (2 pi fc)^2 [N m/rad], Kd = 2 zeta J (2 pi fc) [N m s/rad], the same for both motors."""
-    j = jnp.mean(jnp.diag(rigid_inertia(robot, midpoint_pose(robot, path))))
+    j = _midpoint_inertia(robot, path)
     w = 2.0 * jnp.pi * fc
     return jnp.full(2, j * w**2), jnp.full(2, 2.0 * zeta * j * w)
 

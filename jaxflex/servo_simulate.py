@@ -195,20 +195,28 @@ def _maps(mass, k, c, h) -> _Maps:
     u_d, v1_d, v2_d = e_sum, delta * f1, delta**2 * f2
     # the node tables by recurrence over t = i delta for the rows R = [d, d' / w] of y:
     # U(t + d) = U(t) U(d), V1(t + d) = V1(t) + U(t) V1(d), V2(t + d) = V2(t) + d V1(t) + U(t) V2(d)
+    # (a scan, not a Python loop: one small body compiled instead of NODES copies of it)
     rows = jnp.zeros((4, 2 * n)).at[0, 0].set(1.0).at[1, 1].set(1.0).at[2, n].set(1.0).at[3, n + 1].set(1.0)
-    ru, rv1, rv2 = rows, jnp.zeros((4, 2 * n)), jnp.zeros((4, 2 * n))
-    ru_list, rv1_list, rv2_list = [ru], [rv1], [rv2]
-    for _ in range(NODES):
-        ru, rv1, rv2 = ru @ u_d, rv1 + ru @ v1_d, rv2 + delta * rv1 + ru @ v2_d
-        ru_list.append(ru), rv1_list.append(rv1), rv2_list.append(rv2)
-    ru_n, rv1_n, rv2_n = jnp.stack(ru_list), jnp.stack(rv1_list), jnp.stack(rv2_list)
+    first = (rows, jnp.zeros((4, 2 * n)), jnp.zeros((4, 2 * n)))
+
+    def node(c, _):
+        ru, rv1, rv2 = c
+        nxt = (ru @ u_d, rv1 + ru @ v1_d, rv2 + delta * rv1 + ru @ v2_d)
+        return nxt, nxt
+
+    _, later = jax.lax.scan(node, first, None, length=NODES)
+    ru_n, rv1_n, rv2_n = (jnp.concatenate([a[None], b_]) for a, b_ in zip(first, later))
     # the held torque's response over the last (1 - theta) h: G(t) = V1(t) B S at t = (P - i) delta,
     # G(t + d) = V1(d) B S + U(d) G(t)
     bs = b[:, :2]
-    g = [jnp.zeros((2 * n, 2))]
-    for _ in range(NODES):
-        g.append(v1_d @ bs + u_d @ g[-1])
-    gs_n = jnp.stack(g[::-1])
+    g0 = jnp.zeros((2 * n, 2))
+
+    def held(g, _):
+        g = v1_d @ bs + u_d @ g
+        return g, g
+
+    _, g = jax.lax.scan(held, g0, None, length=NODES)
+    gs_n = jnp.concatenate([g0[None], g])[::-1]
     # the full step by doubling: (U, V1, V2)(2 t) = (U^2, V1 + U V1, U V2 + t V1 + V2)
     u_h, v1_h, v2_h, t = u_d, v1_d, v2_d, delta
     for _ in range(int(np.log2(NODES))):

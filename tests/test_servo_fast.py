@@ -178,7 +178,7 @@ def test_a_fast_sampled_pd_of_growing_bandwidth_tends_to_the_prescribed_motion()
     tables, servo_tables = path_tables(r, PATH), servo_path_tables(r, PATH)
     samples = sample_motion(PATH.length, law, tf, grid)
     schedule = sample_schedule(tf, dwell, grid, rate)
-    feedforward = feedforward_torques("rigid", r, tables, samples, grid)
+    feedforward = jax.jit(lambda r: feedforward_torques("rigid", r, tables, samples, grid))(r)
 
     @jax.jit
     def error(s):
