@@ -159,6 +159,7 @@ def record(servo: Servo) -> dict:
             "fc": num(s.fc), "feedforward": s.feedforward, "delay": bool(s.delay), "units": dict(UNITS)}
 
 
+@jax.jit     # one program per robot shape (its derivatives eagerly are hundreds of small ones)
 def static_torque(robot: Robot, qa) -> jax.Array:
     """The motor torques (2,) [N m] that hold the robot at rest at the motor angles qa (2,) [rad]:
     the static forces (gravity, elasticity) of the full model on the motor coordinates at its
@@ -179,6 +180,7 @@ def feedforward_advance(servo: Servo) -> jax.Array:
     return (0.5 + float(bool(servo.delay))) / servo.rate
 
 
+@jax.jit     # one program per robot shape (its derivatives eagerly are hundreds of small ones)
 def rest_linearization(robot: Robot, qa) -> tuple:
     """The robot at rest at the motor angles qa (2,) [rad], linearized about its static equilibrium
     under gravity (q_e*, motors held at qa) in z = [q_a - qa, q_e - q_e*] (2 + ne): (M, C, K) with

@@ -117,7 +117,7 @@ def test_the_sub_step_maps_are_the_matrix_functions_of_the_free_motor_system():
     stiffness = stiffness.copy()
     stiffness[0, 2] += 5.0
     n, h = mass.shape[0], 0.43 / 4416
-    mp = _maps(jnp.asarray(mass), jnp.asarray(stiffness), jnp.asarray(damping), h)
+    mp = jax.jit(_maps)(jnp.asarray(mass), jnp.asarray(stiffness), jnp.asarray(damping), h)
     a = np.block([[np.zeros((n, n)), np.eye(n)], [-np.linalg.solve(mass, stiffness), -np.linalg.solve(mass, damping)]])
     b = np.concatenate([np.zeros((n, n)), np.linalg.inv(mass)])
     lam, vec = np.linalg.eig(a)
