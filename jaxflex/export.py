@@ -24,7 +24,7 @@ from jaxflex.robot import Robot
 from jaxflex.servo import Servo, feedforward_advance, record, with_rotor
 from jaxflex.simulate import Grid
 from jaxflex.tables import path_tables
-from jaxflex.trajectory import trajectory
+from jaxflex.trajectory import check_cycle_reachable, check_tf, trajectory
 
 COLUMNS = ("t", "x", "y", "q1", "q2", "dq1", "dq2", "ddq1", "ddq2", "tau1", "tau2")
 UNITS = {"t": "s", "x": "m", "y": "m", "q1": "rad", "q2": "rad", "dq1": "rad/s", "dq2": "rad/s",
@@ -72,6 +72,9 @@ def feedforward_at(kind: str, robot: Robot, path: Path, profile: Profile, tf: fl
     raise ValueError(f"unknown feedforward {kind!r}; expected one of none, rigid, flexible")
 
 
+_trajectory = jax.jit(trajectory)      # one program, not the path's and the IGM's operations one by one
+
+
 def trajectory_table(robot: Robot, path: Path, profile: Profile, tf: float, rate: float = DEFAULT_RATE_HZ,
                      feedforward: str = "rigid", grid: Grid | None = None, advance: float = 0.0) -> np.ndarray:
     """The (T, 11) rows of ``COLUMNS`` sampled at ``rate`` [Hz] over [0, tf] [s] (``sample_times``):
@@ -79,7 +82,9 @@ def trajectory_table(robot: Robot, path: Path, profile: Profile, tf: float, rate
     their rates [rad/s] and accelerations [rad/s^2], and the ``feedforward`` torque [N m] of the
     robot (its rotor included; ``feedforward_at`` with ``advance`` [s])."""
     t = sample_times(tf, rate)
-    tr = trajectory(robot, path, profile, tf, jnp.asarray(t))
+    check_tf(tf)
+    check_cycle_reachable(robot, path.cycle)
+    tr = _trajectory(robot, path, profile, jnp.asarray(float(tf)), jnp.asarray(t))
     q, qd, qdd = (np.asarray(a) for a in (tr.q, tr.qd, tr.qdd))
     tau = feedforward_at(feedforward, robot, path, profile, tf, t, q, qd, qdd, grid, advance)
     return np.column_stack([t, np.asarray(tr.x), q, qd, qdd, tau])
