@@ -173,14 +173,15 @@ class LawEvaluator:
     ``servo``: the motors driven by a servo loop (``jaxflex.servo.Servo``, or one per model; None:
     the perfect controller). Each model then gets its servo's rotor, the grid is refined to the
     fastest servo's period (``servo_simulate.servo_grid``), and every loop is checked for stability
-    along the path first (``servo.check_stable``). The feedforward is computed for ``controller``
+    along the path first (``servo.check_stable``; ``checked=True``: the caller has checked them over
+    tf + dwell already, e.g. to leave the unstable ones out). The feedforward is computed for ``controller``
     (the controller's model, e.g. the nominal robot of a box; None: each model its own): the rigid
     inverse dynamics, or the flexible one from the controller's perfect-controller rollout, advanced
     by ``advance`` [s] (None: ``servo.feedforward_advance`` of the first model's servo; give the
     nominal controller's when the models' rates differ)."""
 
     def __init__(self, models: ModelSet, path: Path, tf: float, dwell: float, grid: Grid, *, keep: bool = True,
-                 servo=None, controller: Robot | None = None, advance: float | None = None):
+                 servo=None, controller: Robot | None = None, advance: float | None = None, checked: bool = False):
         k = len(models.labels)
         self._robots = models.singles()
         self._servos = None
@@ -190,7 +191,7 @@ class LawEvaluator:
                 raise ValueError(f"{len(servos)} servos for {k} models")
             self._servos = [sv.checked() for sv in servos]
             self._robots = [with_rotor(r, sv) for r, sv in zip(self._robots, self._servos)]
-            for r, sv in zip(self._robots, self._servos):
+            for r, sv in zip(self._robots, self._servos) if not checked else ():
                 check_stable(r, sv, path, float(tf) + float(dwell))
             grid = servo_grid(grid, tf, dwell, max(float(sv.rate) for sv in self._servos))
         self.models, self.path, self.tf, self.dwell, self.grid = models, path, tf, dwell, grid

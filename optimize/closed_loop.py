@@ -153,7 +153,8 @@ def evaluate(trajectories: dict, robot: Robot, cycle: Cycle, tf: float, dwell: f
             sub = ModelSet(jax.tree_util.tree_map(lambda a: a[kept], models.robots),
                            tuple(models.ids[i] for i in kept))
             ev = LawEvaluator(sub, tr.path, tf, dwell, grid, keep=False, servo=[servos[i] for i in kept],
-                              controller=with_rotor(robot, nominal), advance=float(feedforward_advance(nominal)))
+                              controller=with_rotor(robot, nominal), advance=float(feedforward_advance(nominal)),
+                              checked=True)        # ``stable`` has checked them, over the same duration
             laws = [trajectories[n].law for n in names]
             mets = ev.metrics_many([law(ev.grid) if callable(law) else law for law in laws])
             for name, met in zip(names, mets):
