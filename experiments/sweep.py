@@ -2,13 +2,15 @@
 from __future__ import annotations
 
 import math
+import sys
 import time
+import warnings
 
 from jaxflex import checks
 from jaxflex.metrics import METRICS, UNITS
 from jaxflex.robot import cycle_preset, robot_preset
 from jaxflex.servo import cycle_servo, record
-from jaxflex.sweep import Case, SweepConfig, results_table, run_sweep
+from jaxflex.sweep import Case, StepWarning, SweepConfig, results_table, run_sweep
 
 from .io import fmt, provenance, table, write_json
 
@@ -30,16 +32,25 @@ def compute(preset: str = "default", payload: float = 6.0, tf: float = 0.43, dt:
     if servo is not None:
         options = dict(servo)
         controller = cycle_servo(robot.replace(payload=payload), cycle, options.pop("fc"), **options)
-    res = run_sweep(robot, cycle, [Case(payload, tf)],
-                    SweepConfig(dwell=dwell, dt=dt, repeats=max(repeats, 1), timed=repeats > 0,
-                                progress=True, servo=controller))
+    said = []
+
+    def say(message, category, *_args, **_kwargs):     # at once, before the long run, and in the record
+        said.append(str(message))
+        print(f"jaxflex sweep: warning: {message}", file=sys.stderr, flush=True)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", StepWarning)
+        warnings.showwarning = say
+        res = run_sweep(robot, cycle, [Case(payload, tf)],
+                        SweepConfig(dwell=dwell, dt=dt, repeats=max(repeats, 1), timed=repeats > 0,
+                                    progress=True, servo=controller))
     grid = res.grid
     return {"payload": payload, "tf": tf, "dt": tf / grid.steps, "dwell": dwell, "preset": preset,
             "servo": None if controller is None else record(controller),
             "results": results_table(res, 0),
             "timing": {"compile_s": res.compile_s,
                        "run_s": res.run_s if math.isfinite(res.run_s) else None},   # None: not timed
-            "grid": grid._asdict(), "provenance": provenance(
+            "grid": grid._asdict(), "warnings": said, "provenance": provenance(
                 {"preset": preset, "payload": payload, "tf": tf, "dt": dt, "dwell": dwell, "servo": servo,
                  "repeats": repeats}, started)}
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
+import warnings
 from typing import NamedTuple, Sequence
 
 import jax
@@ -32,6 +33,10 @@ from jaxflex.simulate import Grid, check_grid
 from jaxflex.tables import servo_path_tables
 
 
+class StepWarning(UserWarning):
+    """A user-given step that misses the accuracy the default grid has (``step_warnings``)."""
+
+
 class Case(NamedTuple):
     """A simulation case: payload [kg] and motion time tf [s]."""
 
@@ -47,7 +52,7 @@ def default_grid(robot: Robot, tfs, dwell: float, dt: float | None = None) -> Gr
 
     The squaring count bounds ||A h|| <= 4 omega_max h with omega_max estimated from the highest
     assumed mode of a free link (the assembled robot's highest mode lies below twice that)."""
-    dt = 1e-4 if dt is None else checks.positive("dt", dt, "s")
+    dt = DEFAULT_DT if dt is None else checks.positive("dt", dt, "s")
     dwell = checks.positive("dwell", dwell, "s")
     tf_max = max(checks.positives("tf", tfs, "s"))
     coarse = 8 * max(1, round(tf_max / 8 / 2.25e-3))         # ~2.25 ms frozen intervals (docs/performance.md)
@@ -66,6 +71,45 @@ def default_grid(robot: Robot, tfs, dwell: float, dt: float | None = None) -> Gr
     omega = 2.0 * max(axial, bend, *extra)
     h = max(tf_max / (coarse * fine), dwell / dwell_steps)
     return Grid(coarse=coarse, fine=fine, dwell_steps=dwell_steps, squarings=squarings_for(4 * omega * h))
+
+
+DEFAULT_DT = 1e-4          # [s] the default fine step (``default_grid``)
+SAMPLING_TOL = 0.005       # relative: the largest miss of the dwell's peak that a step may cause unwarned
+
+
+def step_warnings(robot: Robot, cycle, cases: Sequence[Case], dwell: float, dt: float, grid: Grid) -> list[str]:
+    """What a step dt [s] given by the user does to the grid it gives (``default_grid``), as
+    messages (empty: nothing to say):
+
+    - the dwell residual is the largest deviation over the dwell's samples, one per dwell step
+      h_d; sampled that way, the first mode's oscillation (frequency f1 at the place, motors
+      locked: ``modes_at_point``) can have its peak missed by up to 1 - cos(pi f1 h_d) of its
+      amplitude, and entirely once h_d is half its period or more. Above ``SAMPLING_TOL`` it says
+      so, with the bound;
+    - the motion's steps cannot be longer than the frozen-coefficient intervals (about 2.25 ms):
+      a larger dt gives steps of one interval each, not dt, and says so.
+
+    Only the first bound is a measured error; the motion steps' own error is not estimated here
+    (docs/conventions.md#metrics: the step study)."""
+    from jaxflex.frequencies import modes_at_point
+
+    out = []
+    h_d = float(dwell) / grid.dwell_steps
+    for case in cases:
+        f1 = float(modes_at_point(robot.replace(payload=case.payload), np.asarray(cycle.place))[0])
+        phase = math.pi * f1 * h_d
+        miss = 1.0 if phase >= math.pi / 2 else 1.0 - math.cos(phase)
+        if miss > SAMPLING_TOL:
+            bound = ("can be missed entirely" if miss >= 1.0 else f"can be missed by up to {100 * miss:.3g} %")
+            out.append(f"dt {dt:g} s samples the dwell every {h_d:g} s: at payload {case.payload:g} kg the first "
+                       f"mode ({f1:.3g} Hz at the place) has its peak, which the dwell residual measures, {bound}; "
+                       f"use dt <= {2 * math.acos(1 - SAMPLING_TOL) / (2 * math.pi * f1):.3g} s (default {DEFAULT_DT:g} s)")
+    h = max(c.tf for c in cases) / grid.steps
+    if grid.fine == 1 and dt > 1.01 * h:
+        out.append(f"dt {dt:g} s is longer than the frozen-coefficient intervals: the motion runs in steps of "
+                   f"{h:.3g} s (one per interval), {h / DEFAULT_DT:.3g} times the default step, with no estimate of "
+                   f"their error")
+    return out
 
 
 def _poses(robot, cycle, d, e, n, blend):
@@ -237,9 +281,13 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES,
     if c.servo is not None:
         robot = with_rotor(robot, c.servo)
     grid = c.grid or default_grid(robot, [case.tf for case in cases], dwell, c.dt)
-    servo_inputs = None
     if c.servo is not None:
         grid = servo_grid(grid, max(case.tf for case in cases), dwell, float(c.servo.rate))
+    if c.dt is not None and c.grid is None:       # before anything compiles
+        for message in step_warnings(robot, cycle, cases, dwell, c.dt, grid):
+            warnings.warn(message, StepWarning, stacklevel=2)
+    servo_inputs = None
+    if c.servo is not None:
         paths = [make_path(cycle, b, c.d, c.e, c.n) for b in blends]
         case_robots = [robot.replace(payload=case.payload) for case in cases]
         with stage("servo loop", enabled=progress) as servo_bar, \

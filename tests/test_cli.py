@@ -346,3 +346,33 @@ def test_optimize_command_under_a_servo(tmp_path, capsys):
     controller = json.loads((out_dir / "controller.json").read_text())
     assert controller["controller"] == "servo" and controller["fc"] == 40.0 and controller["rate"] == 8000.0
     assert controller["feedforward"] == "flexible" and min(controller["kp"]) > 0 and min(controller["kd"]) > 0
+
+
+def test_a_given_step_that_undersamples_the_dwell_is_warned_before_anything_compiles(monkeypatch, capsys):
+    """``sweep --dt 1``: the dwell sampled every 0.1 s can miss the first mode's peak entirely, and the
+    motion runs in frozen intervals of about 2.24 ms, not 1 s: both said on stderr before any table is
+    built (the tables' builder stopped here), at each payload. The bound is the sampled cosine's:
+    at dt 1 ms and 0.1 kg (129 Hz) 1 - cos(pi f1 h) = 8.1 %, and at the default step nothing."""
+    from jaxflex import sweep as sw
+    from jaxflex.frequencies import modes_at_point
+    from jaxflex.robot import cycle_preset, robot_preset
+
+    class Stop(Exception):
+        pass
+
+    def stop(*a, **k):
+        raise Stop
+
+    monkeypatch.setattr(sw, "_stacked_tables", stop)
+    assert main(["sweep", "--payload", "0.1", "--tf", "0.3", "--dt", "1"]) != 0       # stopped at the tables
+    err = capsys.readouterr().err
+    assert "failed: Stop" in err, err
+    assert "jaxflex sweep: warning: dt 1 s samples the dwell every 0.1 s" in err and "missed entirely" in err
+    assert "steps of 0.00" in err and "frozen-coefficient intervals" in err
+    robot, cycle = robot_preset("default"), cycle_preset()
+    cases = [sw.Case(0.1, 0.3)]
+    f1 = float(modes_at_point(robot.replace(payload=0.1), np.asarray(cycle.place))[0])
+    said = sw.step_warnings(robot, cycle, cases, 0.1, 1e-3, sw.default_grid(robot, [0.3], 0.1, 1e-3))
+    assert 100 < f1 < 160 and len(said) == 1, (f1, said)
+    assert f"up to {100 * (1 - math.cos(math.pi * f1 * 1e-3)):.3g} %" in said[0], said
+    assert sw.step_warnings(robot, cycle, cases, 0.1, 1e-4, sw.default_grid(robot, [0.3], 0.1, 1e-4)) == []
