@@ -104,11 +104,15 @@ def reproduce_case(record: dict, out_dir: str, steps: int, samples: int, fcs=FCS
     ``out_dir/residual_vs_fc.png``. Returns {"studies": fc -> record, "sweep": ``bandwidth_sweep``}."""
     from pathlib import Path
 
+    from jaxflex.runtime.compiled import release_compiled
+
     from .io import save_figure
     from .report import case_label
 
-    studies = {f"{fc:g}": case(record, Controller(fc), steps=steps, samples=samples, corners=corners, fcs=(fc,))
-               for fc in fcs}
+    studies = {}
+    for fc in fcs:
+        release_compiled()      # the last bandwidth's gradient (tens of thousands of mappings) is done with
+        studies[f"{fc:g}"] = case(record, Controller(fc), steps=steps, samples=samples, corners=corners, fcs=(fc,))
     first = studies[f"{fcs[0]:g}"]
     sweep = bandwidth_sweep(record, first, figure_fcs)
     save_figure(figure(sweep, first, case_label(record["payloads"][0], record["tf"])),
