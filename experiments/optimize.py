@@ -290,18 +290,19 @@ def closed_loop_section(study, robot, cycle, payload: float, tf: float, options:
     from jaxflex.optimize.closed_loop import Controller, closed_loop_study
     from jaxflex.optimize.config import SCENARIOS
     from jaxflex.profiles import shaped
-    from jaxflex.runtime.compiled import run_isolated
+    from jaxflex.runtime.compiled import run_isolated_uncached
     from jaxflex.servo import cycle_servo
 
     if study.design is None:
         raise ValueError("the closed-loop study refines a free-path design; drop --law-only with --servo")
     controller = Controller(options["fc"], options["rate"], options["rotor_inertia"], options["feedforward"])
     order = int(study.candidates["optimized"].law.order)
-    # in a process of its own (as reproduce runs it): the closed loop's gradient is one program of
-    # tens of thousands of memory mappings, and in the process of the perfect controller's study,
-    # even after releasing that study's programs, LLVM aborted loading it at 0.1 kg ("Unable to
-    # allocate section memory": the kernel's mapping limit, jaxflex.runtime.compiled)
-    rec = run_isolated(closed_loop_study, robot, cycle, payload, tf, 0.1, study.grid, study.design,
+    # in a process of its own (as reproduce runs it) and without the persistent compilation cache:
+    # the closed loop's gradient is one program of about 26,000 memory mappings, writing it to the
+    # cache briefly doubles them, and LLVM aborted at the kernel's mapping limit ("Unable to
+    # allocate section memory") in the study's process and in a fresh one with the cache on
+    # (jaxflex.runtime.compiled, docs/performance.md)
+    rec = run_isolated_uncached(closed_loop_study, robot, cycle, payload, tf, 0.1, study.grid, study.design,
                        study.candidates["optimized"].law, controller, fcs=options["fcs"], steps=options["steps"],
                        samples=options["samples"], corners=options["corners"], box=config.box,
                        blend=config.train.blend, order=order, first_mode_hz=study.first_mode_hz[0],

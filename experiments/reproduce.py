@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxflex import progress
-from jaxflex.runtime.compiled import release_compiled, release_if_crowded, run_isolated
+from jaxflex.runtime.compiled import release_compiled, release_if_crowded, run_isolated, run_isolated_uncached
 
 from . import convergence, kinematics, modes, report
 from . import vibration as vibration_study
@@ -242,7 +242,7 @@ def _closed_loop(out: Path, key: dict, opt: dict) -> dict:
         name = f"{rec['payloads'][0]:g}"
         d = out / f"closed_loop_{name}kg"
         r = resumable(d / "closed_loop.json", key,
-                      lambda: run_isolated(cl.reproduce_case, record=rec, out_dir=str(d), steps=CLOSED_LOOP_STEPS,
+                      lambda: run_isolated_uncached(cl.reproduce_case, record=rec, out_dir=str(d), steps=CLOSED_LOOP_STEPS,
                                            samples=CLOSED_LOOP_SAMPLES), f"closed loop {name} kg")
         res["cases"].append({"dir": d.relative_to(out).as_posix(), "payload": rec["payloads"][0], "tf": rec["tf"],
                              **r})

@@ -76,6 +76,21 @@ def test_run_isolated_compiles_in_a_child_and_keeps_settings_and_errors():
         run_isolated(_fails)
 
 
+def _cache_settings():
+    return bool(jax.config.jax_enable_compilation_cache), jax.config.jax_compilation_cache_dir
+
+
+def test_run_isolated_uncached_turns_the_persistent_cache_off_in_the_child_only():
+    """The closed loop's studies run with the persistent compilation cache off (writing their
+    gradient to it briefly doubles its memory mappings): the child has it off, with the parent's
+    cache directory still set; the parent keeps it on."""
+    from jaxflex.runtime.compiled import run_isolated, run_isolated_uncached
+
+    parent = _cache_settings()
+    assert run_isolated_uncached(_cache_settings) == (False, parent[1])
+    assert run_isolated(_cache_settings) == parent and _cache_settings() == parent and parent[0] is True
+
+
 def test_compile_ahead_gives_the_jitted_result_and_release_forgets_it():
     """A program compiled ahead from shapes alone (``compile_ahead``) is the one ``call`` runs for
     arguments of those shapes, with the jitted function's result; other shapes, other static

@@ -202,6 +202,18 @@ def run_isolated(fn, /, *args, **kwargs):
     raising its exception. The child's compiled programs and memory mappings end with it. ``fn``
     must be importable (a module-level function), its arguments and result picklable; the child's
     output goes to this process's stdout/stderr."""
-    config = {name: getattr(jax.config, name) for name in _CONFIG}
+    return _isolated({}, fn, args, kwargs)
+
+
+def run_isolated_uncached(fn, /, *args, **kwargs):
+    """``run_isolated`` with the persistent compilation cache off in the child: nothing it compiles
+    is written to the cache or read from it. For the closed loop's gradient: writing a program to
+    the cache serializes it, and for that program (about 26,000 memory mappings) the serialization
+    briefly doubled the process's mappings, past the kernel's limit (docs/performance.md)."""
+    return _isolated({"jax_enable_compilation_cache": False}, fn, args, kwargs)
+
+
+def _isolated(overrides: dict, fn, args, kwargs):
+    config = {name: getattr(jax.config, name) for name in _CONFIG} | overrides
     with ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn")) as pool:
         return pool.submit(_call_configured, config, heap.trimming(), fn, args, kwargs).result()
