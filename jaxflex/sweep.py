@@ -103,7 +103,7 @@ def step_warnings(robot: Robot, cycle, cases: Sequence[Case], dwell: float, dt: 
             bound = ("can be missed entirely" if miss >= 1.0 else f"can be missed by up to {100 * miss:.3g} %")
             out.append(f"dt {dt:g} s samples the dwell every {h_d:g} s: at payload {case.payload:g} kg the first "
                        f"mode ({f1:.3g} Hz at the place) has its peak, which the dwell residual measures, {bound}; "
-                       f"use dt <= {2 * math.acos(1 - SAMPLING_TOL) / (2 * math.pi * f1):.3g} s (default {DEFAULT_DT:g} s)")
+                       f"use dt <= {math.acos(1 - SAMPLING_TOL) / (math.pi * f1):.3g} s (default {DEFAULT_DT:g} s)")
     h = max(c.tf for c in cases) / grid.steps
     if grid.fine == 1 and dt > 1.01 * h:
         out.append(f"dt {dt:g} s is longer than the frozen-coefficient intervals: the motion runs in steps of "
