@@ -140,7 +140,7 @@ def compute(repeats: int = 5, quick: bool = False) -> dict:
     robot, cycle = robot_preset("default"), cycle_preset()
     print("sweep: 12 combinations x 2 cases (6 kg/0.43 s, 0.1 kg/0.3 s), motion + 0.1 s dwell ...",
           flush=True)
-    res = run_sweep(robot, cycle, PAPER_CASES, SweepConfig(repeats=repeats))
+    res = run_sweep(robot, cycle, PAPER_CASES, SweepConfig(repeats=repeats, estimate=False))
     g = res.grid
     steps = 24 * (g.steps + g.dwell_steps)
     sweep = {"rollouts": 24, "tables_s": res.tables_s, "compile_s": res.compile_s, "run_s": res.run_s,

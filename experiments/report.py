@@ -295,6 +295,8 @@ def convergence_section(conv: dict, vib: dict) -> str:
     return "\n".join([
         "## 4. Step convergence and the full nonlinear model", "",
         "### dt convergence (docs/conventions.md#fast-model)", "", convergence.dt_markdown(conv["dt"]), "",
+        *(["### The error estimate against the measured error (docs/conventions.md#accuracy)", "",
+           convergence.estimate_markdown(conv["dt"]), ""] if "estimate" in conv["dt"] else []),
         ("Every metric is within its limit. " if dt_ok else "NOT every metric is within its limit (see the "
          "table). ")
         + f"`residual_acc` (|e''| at the single instant tf, every mode up to ~18 kHz, undamped, no filter) "

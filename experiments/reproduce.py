@@ -286,7 +286,7 @@ def richer_sweep(n_modes: int = 3, paper: dict | None = None) -> dict:
         if label == "paper model" and paper is not None:
             out["dwell_residual_mm"][label] = paper
         else:
-            res = run_sweep(r, cycle, PAPER_CASES, SweepConfig(timed=False))
+            res = run_sweep(r, cycle, PAPER_CASES, SweepConfig(timed=False, estimate=False))
             dw = res.metrics["dwell_residual_mm"]
             out["dwell_residual_mm"][label] = {
                 case_label(c.payload, c.tf): {f"{b}/{p}": float(dw[i, j, k]) for i, b in enumerate(res.blends)

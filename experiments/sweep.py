@@ -10,7 +10,7 @@ from jaxflex import checks
 from jaxflex.metrics import METRICS, UNITS
 from jaxflex.robot import cycle_preset, robot_preset
 from jaxflex.servo import cycle_servo, record
-from jaxflex.sweep import Case, StepWarning, SweepConfig, results_table, run_sweep
+from jaxflex.sweep import Case, StepWarning, SweepConfig, accuracy_record, results_table, run_sweep
 
 from .io import fmt, provenance, table, write_json
 
@@ -50,7 +50,7 @@ def compute(preset: str = "default", payload: float = 6.0, tf: float = 0.43, dt:
             "results": results_table(res, 0),
             "timing": {"compile_s": res.compile_s,
                        "run_s": res.run_s if math.isfinite(res.run_s) else None},   # None: not timed
-            "grid": grid._asdict(), "warnings": said, "provenance": provenance(
+            "grid": grid._asdict(), "accuracy": accuracy_record(res.accuracy), "warnings": said, "provenance": provenance(
                 {"preset": preset, "payload": payload, "tf": tf, "dt": dt, "dwell": dwell, "servo": servo,
                  "repeats": repeats}, started)}
 
@@ -59,14 +59,22 @@ def text(rec: dict) -> str:
     """The sweep record as a table (every metric of docs/conventions.md#metrics per blend and profile,
     with units) plus timing."""
     head = ["blend", "profile"] + [f"{SHORT.get(m, m)} [{UNITS[m]}]" for m in METRICS]
-    rows = [[r["blend"], r["profile"]] + [fmt(r[m], 4) for m in METRICS] for r in rec["results"]]
+    est = lambda r, m: f" ± {fmt(r['error_estimate'][m], 2)}" if m == "dwell_residual_mm" and "error_estimate" in r else ""
+    rows = [[r["blend"], r["profile"]] + [fmt(r[m], 4) + est(r, m) for m in METRICS] for r in rec["results"]]
     t = rec["timing"]
     sv = rec.get("servo")
     control = "perfect controller (motor angles prescribed)" if sv is None else (
         f"servo fc {sv['fc']:g} Hz at {sv['rate']:g} Hz, rotor {sv['rotor_inertia']:g} kg m^2, "
         f"{sv['feedforward']} feedforward, Kp {sv['kp'][0]:.4g} N m/rad, Kd {sv['kd'][0]:.4g} N m s/rad")
+    acc = rec.get("accuracy")
+    accuracy = "" if acc is None else (
+        f"\n\nDwell residual ± its estimated discretization error (step doubling against a grid "
+        f"{acc['ratio']:.2g}x coarser, docs/conventions.md#accuracy); tolerance {100 * acc['rtol']:g} % of it or "
+        f"{1e6 * acc['atol_mm']:g} nm: " + ("met" if acc["met"] else "MISSED") + f" (largest estimate "
+        f"{acc['max_estimate_over_tolerance']:.2g} x its tolerance" + (
+            f"; the grid refined {acc['refinements']} time(s) to meet it" if acc["refinements"] else "") + ")")
     return (f"Sweep: payload {rec['payload']:g} kg, tf {rec['tf']:g} s, dt {rec['dt']:.3g} s, dwell "
-            f"{rec['dwell']:g} s ({rec['preset']} preset), {control}\n\n" + table(head, rows)
+            f"{rec['dwell']:g} s ({rec['preset']} preset), {control}\n\n" + table(head, rows) + accuracy
             + (f"\n\ncompile {t['compile_s']:.1f} s, run {t['run_s'] * 1e3:.0f} ms (median)"
                if t["run_s"] is not None else f"\n\ncompile and first run {t['compile_s']:.1f} s (not timed)"))
 

@@ -17,6 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxflex import checks, engine, trees
+from jaxflex.accuracy import DWELL_ATOL_MM, DWELL_RTOL, Accuracy, coarser_grid, estimated, worst
 from jaxflex.blends import BLENDS
 from jaxflex.expm import squarings_for
 from jaxflex.linearized import Tables
@@ -34,7 +35,9 @@ from jaxflex.tables import servo_path_tables
 
 
 class StepWarning(UserWarning):
-    """A user-given step that misses the accuracy the default grid has (``step_warnings``)."""
+    """Results that may miss the accuracy asked for: a user-given step that undersamples the dwell or
+    outruns the frozen intervals (``step_warnings``, before anything runs), or runs whose estimated
+    error misses the tolerance (``jaxflex.accuracy``, after them)."""
 
 
 class Case(NamedTuple):
@@ -48,16 +51,27 @@ PAPER_CASES = (Case(6.0, 0.43), Case(0.1, 0.3))
 
 
 def default_grid(robot: Robot, tfs, dwell: float, dt: float | None = None) -> Grid:
-    """Grid with fine step about dt (default 1e-4 s) and enough exponential squarings.
-
-    The squaring count bounds ||A h|| <= 4 omega_max h with omega_max estimated from the highest
-    assumed mode of a free link (the assembled robot's highest mode lies below twice that)."""
+    """Grid with fine step about dt (default 1e-4 s) and enough exponential squarings
+    (``step_squarings``)."""
     dt = DEFAULT_DT if dt is None else checks.positive("dt", dt, "s")
     dwell = checks.positive("dwell", dwell, "s")
     tf_max = max(checks.positives("tf", tfs, "s"))
     coarse = 8 * max(1, round(tf_max / 8 / 2.25e-3))         # ~2.25 ms frozen intervals (docs/performance.md)
     fine = max(1, math.ceil(tf_max / coarse / dt))
     dwell_steps = max(1, math.ceil(dwell / dt))
+    grid = Grid(coarse=coarse, fine=fine, dwell_steps=dwell_steps)
+    return grid._replace(squarings=step_squarings(robot, grid_step(grid, tf_max, dwell)))
+
+
+def grid_step(grid: Grid, tf_max: float, dwell: float) -> float:
+    """The longest step [s] of ``grid`` over a motion of ``tf_max`` [s] and a dwell of ``dwell`` [s]."""
+    return max(tf_max / grid.steps, dwell / grid.dwell_steps)
+
+
+def step_squarings(robot: Robot, h: float) -> int:
+    """Squarings of the matrix exponential for steps up to h [s]: they bound ||A h|| <= 4 omega_max h
+    with omega_max estimated from the highest assumed mode of a free link (the assembled robot's
+    highest mode lies below twice that)."""
     c = math.sqrt(float(robot.young) / float(robot.rho))
     axial = (2 * robot.n_axial - 1) * math.pi / 2 * c / float(robot.l2)
     from jaxflex.beams import bending_roots
@@ -69,8 +83,7 @@ def default_grid(robot: Robot, tfs, dwell: float, dt: float | None = None) -> Gr
     if robot.n_bending_distal:
         extra.append(bending_roots(robot.n_bending_distal)[-1] ** 2 / float(robot.l2) ** 2 * ei_rho_a)
     omega = 2.0 * max(axial, bend, *extra)
-    h = max(tf_max / (coarse * fine), dwell / dwell_steps)
-    return Grid(coarse=coarse, fine=fine, dwell_steps=dwell_steps, squarings=squarings_for(4 * omega * h))
+    return squarings_for(4 * omega * h)
 
 
 DEFAULT_DT = 1e-4          # [s] the default fine step (``default_grid``)
@@ -176,7 +189,12 @@ class SweepConfig:
     timed=False: none (the results only). progress: report the stages on stderr
     (``jaxflex.progress``). servo: the motors driven by this servo loop (``jaxflex.servo.Servo``, its
     rotor on every case's robot, its feedforward computed for each case's robot; the grid refined to
-    its period; docs/conventions.md#servo); None: the perfect controller (the paper's)."""
+    its period; docs/conventions.md#servo); None: the perfect controller (the paper's). estimate: every
+    run's discretization error estimated by step doubling (``jaxflex.accuracy``; the sweep run again
+    on a grid about twice coarser; not yet under a servo), held to the tolerance on the dwell
+    residual of ``rtol`` of it or ``atol_mm`` [mm], whichever is larger; where the default grid
+    misses it, every step is halved up to ``refine`` times (a grid or dt given: never). Results that
+    still miss it are warned about (``StepWarning``)."""
 
     blends: tuple = BLENDS
     profiles: tuple = PROFILES
@@ -192,6 +210,10 @@ class SweepConfig:
     timed: bool = True
     progress: bool = False
     servo: Servo | None = None
+    estimate: bool = True
+    refine: int = 2
+    rtol: float = DWELL_RTOL
+    atol_mm: float = DWELL_ATOL_MM
 
     def checked(self, cycle) -> "SweepConfig":
         """The configuration with tuples, floats and e filled in; ValueError naming a bad field
@@ -201,6 +223,9 @@ class SweepConfig:
         dwell = checks.positive("dwell", self.dwell, "s")
         dt = None if self.dt is None else checks.positive("dt", self.dt, "s")
         repeats = checks.count("repeats", self.repeats)
+        refine = checks.count("refine", self.refine, minimum=0)
+        rtol = checks.positive("rtol", self.rtol, "")
+        atol_mm = checks.positive("atol_mm", self.atol_mm, "mm")
         if not blends or not profiles:
             raise ValueError("blends and profiles must not be empty")
         for p in profiles:
@@ -215,7 +240,7 @@ class SweepConfig:
                 raise TypeError(f"servo must be a jaxflex.servo.Servo, got {type(self.servo).__name__}")
             servo = self.servo.checked()
         return dataclasses.replace(self, blends=blends, profiles=profiles, e=e, dwell=dwell, dt=dt, repeats=repeats,
-                                   servo=servo)
+                                   servo=servo, refine=refine, rtol=rtol, atol_mm=atol_mm)
 
 
 def sweep_tables(robot: Robot, cycle, payloads: Sequence[float], blend: str,
@@ -236,7 +261,8 @@ def sweep_tables(robot: Robot, cycle, payloads: Sequence[float], blend: str,
 
 class SweepResult(NamedTuple):
     """Metrics dict name -> (B, P, C) arrays (blend, profile, case), optional Series with the same
-    leading axes, the labels, and timing."""
+    leading axes, the labels, the grid of the results, timing, and the error estimate of every
+    metric (``jaxflex.accuracy.Accuracy``; None when not estimated)."""
 
     metrics: dict
     series: object
@@ -247,6 +273,7 @@ class SweepResult(NamedTuple):
     compile_s: float
     run_s: float
     tables_s: float
+    accuracy: Accuracy | None = None
 
 
 def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES,
@@ -266,7 +293,9 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES,
     run): ``compile_s`` is then the first sweep's wall time (compilation and one run) and
     ``run_s`` is nan. The linearized model alone (``second_order=False``) still takes two passes,
     the second one making the coefficients continuous; ``grid=Grid(..., continuous=False)`` makes
-    it one pass.
+    it one pass. With ``config.estimate`` (default) the result carries every metric's error estimate
+    (``SweepResult.accuracy``), from a second sweep on a coarser grid that is not timed, and may come
+    from a refined grid (``SweepConfig``).
     """
     if not isinstance(config, SweepConfig):
         raise TypeError(f"config must be a SweepConfig, got {type(config).__name__}")
@@ -312,28 +341,79 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES,
     robots = [robot.replace(payload=case.payload) for case in cases]
     tf_list = [case.tf for case in cases]
 
-    def sweep():
+    def sweep(grid):
         series = _sweep_series(values, breaks, lengths, tf_list, dwell, robots, profiles, grid, c.second_order,
                                servo_inputs)
         return engine.metrics_of(series), series
 
-    t0 = time.perf_counter()
-    with bar.waiting("the first sweep (compiling the rollout unless cached)", key="sweep-first"):
-        mets, series = jax.block_until_ready(sweep())
-    first = time.perf_counter() - t0
-    bar.update(note="first sweep")
-    runs = []
-    for _ in range(repeats if timed else 0):
+    def timed_sweeps(grid, bar):
         t0 = time.perf_counter()
-        mets, series = jax.block_until_ready(sweep())
-        runs.append(time.perf_counter() - t0)
-        bar.update(note="timed sweep")
-    bar.close("done")
-    run_s = float(np.median(runs)) if runs else float("nan")
-    _check_finite(mets, blends, profiles, cases)
-    compile_s = max(first - run_s, 0.0) if runs else first
+        with bar.waiting("the first sweep (compiling the rollout unless cached)", key="sweep-first"):
+            mets, series = jax.block_until_ready(sweep(grid))
+        first = time.perf_counter() - t0
+        bar.update(note="first sweep")
+        runs = []
+        for _ in range(repeats if timed else 0):
+            t0 = time.perf_counter()
+            mets, series = jax.block_until_ready(sweep(grid))
+            runs.append(time.perf_counter() - t0)
+            bar.update(note="timed sweep")
+        bar.close("done")
+        run_s = float(np.median(runs)) if runs else float("nan")
+        _check_finite(mets, blends, profiles, cases)
+        return mets, series, (max(first - run_s, 0.0) if runs else first), run_s
+
+    mets, series, compile_s, run_s = timed_sweeps(grid, bar)
+    accuracy = None
+    if c.estimate and c.servo is None:
+        accuracy, grid, mets, series, compile_s, run_s = _estimated(
+            c, robot, cases, grid, mets, series, compile_s, run_s, sweep, timed_sweeps,
+            refine=c.refine if c.dt is None and c.grid is None else 0)
+        if not accuracy.met:
+            idx, err, tol = worst(accuracy)
+            b_, p_, k_ = idx
+            who, advice = ((f"dt {c.dt:g} s", "use a smaller dt, or none to have the grid chosen for the tolerance")
+                           if c.dt is not None else
+                           ("the grid given", "use a finer grid, or none to have it chosen for the tolerance")
+                           if c.grid is not None else
+                           (f"the default grid refined {accuracy.refinements} times", "allow more refinements"))
+            warnings.warn(f"{who} misses the accuracy asked for: the estimated error of the dwell residual is "
+                          f"{1e3 * err:.3g} um in run {blends[b_]}/{profiles[p_]} at {cases[k_].payload:g} kg, "
+                          f"tf {cases[k_].tf:g} s, above its tolerance {1e3 * tol:.3g} um (the larger of "
+                          f"{100 * c.rtol:g} % of the residual and {1e6 * c.atol_mm:g} nm); {advice}",
+                          StepWarning, stacklevel=2)
     return SweepResult(mets, series if c.with_series else None, blends, profiles, cases, grid,
-                       compile_s, run_s, tables_s)
+                       compile_s, run_s, tables_s, accuracy)
+
+
+def _estimated(c, robot, cases, grid, mets, series, compile_s, run_s, sweep, timed_sweeps, refine):
+    """The error estimate of a sweep's metrics (``jaxflex.accuracy.estimated``): the same sweep on the
+    coarser grid and, where the dwell residual misses its tolerance and ``refine`` allows, timed
+    sweeps on refined grids. Returns the accuracy and the final grid's results."""
+    t_start = time.perf_counter()
+    tf_max = max(case.tf for case in cases)
+    coarser = coarser_grid(grid, step_squarings(robot, 2 * grid_step(grid, tf_max, c.dwell)))
+    if coarser is None:
+        raise ValueError(f"the grid {tuple(grid)[:3]} has no coarser grid to estimate its error with; "
+                         "use a finer grid or SweepConfig(estimate=False)")
+    last = {"grid": grid, "out": (mets, series, compile_s, run_s)}
+
+    def evaluate(g):
+        with stage("error estimate", enabled=c.progress) as bar, \
+                bar.waiting(f"the sweep on a grid {coarser[1]:.2g}x coarser (compiling unless cached)",
+                            key="sweep-estimate"):
+            m, _ = jax.block_until_ready(sweep(g))
+        _check_finite(m, c.blends, c.profiles, cases)
+        return m
+
+    def refined(g):
+        bar = stage("refined grid: every step halved to meet the tolerance", total=1 + (c.repeats if c.timed else 0),
+                    unit="sweep", enabled=c.progress)
+        last["grid"], last["out"] = g, timed_sweeps(g, bar)
+        return last["out"][0]
+
+    acc, _ = estimated(evaluate, grid, mets, coarser, refine=refine, rtol=c.rtol, atol_mm=c.atol_mm, refined=refined)
+    return (acc._replace(seconds=time.perf_counter() - t_start), last["grid"]) + last["out"]
 
 
 def _check_finite(mets, blends, profiles, cases):
@@ -348,11 +428,26 @@ def _check_finite(mets, blends, profiles, cases):
 
 def results_table(res: SweepResult, case_index: int) -> list[dict]:
     """Per-run records (the 'results' entries of ``jaxflex sweep --json``, docs/conventions.md#file-formats)
-    for one case."""
+    for one case: the metrics and, when estimated, their error estimates (``error_estimate``, in the
+    metrics' units) and the dwell residual's tolerance [mm]."""
     out = []
     for i, b in enumerate(res.blends):
         for j, p in enumerate(res.profiles):
             rec = {"blend": b, "profile": p}
             rec.update({k: float(res.metrics[k][i, j, case_index]) for k in METRICS})
+            if res.accuracy is not None:
+                rec["error_estimate"] = {k: float(res.accuracy.errors[k][i, j, case_index]) for k in METRICS}
+                rec["dwell_residual_tolerance_mm"] = float(res.accuracy.tolerance_mm[i, j, case_index])
             out.append(rec)
     return out
+
+
+def accuracy_record(acc: Accuracy | None) -> dict | None:
+    """The sweep's accuracy as a JSON-ready dict (``jaxflex sweep --json``'s ``accuracy``), None if
+    not estimated."""
+    if acc is None:
+        return None
+    return {"method": "step doubling: |m - m_coarser| / (r - 1)", "rtol": acc.rtol, "atol_mm": acc.atol_mm,
+            "met": acc.met, "ratio": acc.ratio, "refinements": acc.refinements, "seconds": acc.seconds,
+            "grid": acc.grid._asdict(), "compared_with": acc.compared_with._asdict(),
+            "max_estimate_over_tolerance": float(np.max(acc.errors["dwell_residual_mm"] / acc.tolerance_mm))}

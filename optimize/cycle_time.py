@@ -102,7 +102,7 @@ def cycle_time_study(problem: Problem, tfs: Sequence[float] = (0.43, 0.40, 0.37,
                                   config.train)
         gradient.compile_ahead(shapes, params)
     res = run_sweep(robot, cycle, [Case(payload, float(t)) for t in tfs],
-                    SweepConfig(dwell=dwell, grid=grid, timed=False))
+                    SweepConfig(dwell=dwell, grid=grid, timed=False, estimate=False))
     dw = res.metrics["dwell_residual_mm"]                                   # (B, P, T)
     k_ref = int(np.argmin(np.abs(tfs - tf_ref)))
     i, j = np.unravel_index(np.argmin(dw[:, :, k_ref]), dw.shape[:2])

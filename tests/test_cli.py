@@ -119,6 +119,14 @@ def test_sweep_command(tmp_path, capsys):
         assert all(math.isfinite(r[m]) and r[m] > 0 for m in METRICS), r
         assert 40 < r["max_torque_nm"] < 400 and 1e-4 < r["dwell_residual_mm"] < 1.0, r
     assert "|e''(tf)| < 1 kHz" in out and "dwell" in out
+    # every run carries its error estimate (docs/conventions.md#accuracy), within the tolerance
+    acc = rec["accuracy"]
+    assert acc["met"] and acc["ratio"] == 2.0 and acc["compared_with"]["coarse"] * 2 == rec["grid"]["coarse"]
+    for r in rec["results"]:
+        assert set(METRICS) <= set(r["error_estimate"])
+        assert 0 < r["error_estimate"]["dwell_residual_mm"] <= r["dwell_residual_tolerance_mm"], r
+        assert r["dwell_residual_tolerance_mm"] == max(0.005 * r["dwell_residual_mm"], 1e-6)
+    assert " ± " in out and "tolerance 0.5 % of it or 1 nm: met" in out
 
 
 @pytest.mark.xdist_group("servo-cli")       # its own programs, beside the command tests' worker

@@ -382,7 +382,8 @@ def test_paper_sweep_on_training_models_matches_run_sweep_and_chunks_do_not_chan
     blends, laws = ("lame",), ("poly7", "trap_1_4")
     models = training_models(robot, [6.0], "spanning")
     sweep = paper_sweep(models, cycle, TF, SweepConfig(blends=blends, profiles=laws, dwell=DWELL, grid=grid))
-    res = run_sweep(robot, cycle, [Case(6.0, TF)], SweepConfig(blends=blends, profiles=laws, grid=grid, timed=False))
+    res = run_sweep(robot, cycle, [Case(6.0, TF)], SweepConfig(blends=blends, profiles=laws, grid=grid, timed=False,
+                                                      estimate=False))
     assert np.isnan(res.run_s) and res.compile_s > 0          # untimed: one sweep, no timed rerun
     i = int(nominal_indices(models, [6.0])[0])
     for name in ("dwell_residual_mm", "max_torque_nm", "residual_energy", "max_deflection_mm"):

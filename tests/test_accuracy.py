@@ -1,0 +1,120 @@
+"""The rollouts' error estimate (``jaxflex.accuracy``): the step-doubling formula and the grids it
+compares, the refinement loop on a metric of known order, and on real rollouts: the estimate against
+the error measured on a grid with every step four times shorter, the warning for a ``dt`` that
+misses the tolerance and the grid refined when the default one misses it."""
+import math
+import warnings
+
+import numpy as np
+import pytest
+
+from jaxflex import accuracy as ac
+from jaxflex.robot import cycle_preset, robot_preset
+from jaxflex.simulate import Grid
+from jaxflex.sweep import DEFAULT_DT, Case, StepWarning, SweepConfig, default_grid, run_sweep
+
+
+def test_coarser_and_finer_grids_scale_every_step_together():
+    g = Grid(coarse=192, fine=23, dwell_steps=1000, squarings=8)
+    c, r = ac.coarser_grid(g, squarings=9)
+    assert (c.coarse, c.fine, c.dwell_steps, c.squarings, r) == (96, 23, 500, 9, 2.0)
+    assert ac.finer_grid(c)._replace(squarings=8) == g             # a refinement undoes a coarsening
+    # 136 intervals (tf 0.3 s alone): 64 of them, H and h grow by 136/64, the dwell steps by as much
+    c, r = ac.coarser_grid(Grid(coarse=136, fine=22, dwell_steps=1000), squarings=9)
+    assert c.coarse == 64 and r == pytest.approx(136 / 64)
+    assert c.dwell_steps == round(1000 / r)
+    # 8 intervals: the fine steps halve instead; one step of one interval: nothing coarser
+    c, r = ac.coarser_grid(Grid(coarse=8, fine=5, dwell_steps=10), squarings=9)
+    assert (c.coarse, c.fine, r) == (8, 3, pytest.approx(5 / 3))
+    assert ac.coarser_grid(Grid(coarse=8, fine=1, dwell_steps=10), squarings=9) is None
+
+
+def test_estimate_and_tolerance_formulas():
+    m = {"dwell_residual_mm": np.array([1.0, 1e-5]), "max_torque_nm": np.array([50.0, 40.0])}
+    mc = {"dwell_residual_mm": np.array([1.004, 1.3e-5]), "max_torque_nm": np.array([50.5, 39.0])}
+    acc = ac.estimate(m, mc, Grid(), Grid(coarse=48), 2.0)
+    np.testing.assert_allclose(acc.errors["dwell_residual_mm"], [0.004, 3e-6])
+    np.testing.assert_allclose(acc.errors["max_torque_nm"], [0.5, 1.0])
+    # 0.5 % of the residual or 1 nm (1e-6 mm), whichever is larger
+    np.testing.assert_allclose(acc.tolerance_mm, [0.005, 1e-6])
+    assert not acc.met                                       # 3e-6 mm > 1 nm in the second run
+    assert ac.worst(acc)[0] == (1,)
+    # a ratio other than 2: the difference over r - 1
+    acc = ac.estimate(m, mc, Grid(), Grid(coarse=48), 1.5)
+    np.testing.assert_allclose(acc.errors["dwell_residual_mm"], [0.008, 6e-6])
+
+
+def _second_order(exact=1.0, c=8000.0, tf=0.43):
+    """A 'metric' m(grid) = exact + c h^2 of the grid's fine step h [s] (a second-order method)."""
+    h = lambda g: tf / (g.coarse * g.fine)
+    return lambda g: {"dwell_residual_mm": np.array([exact + c * h(g) ** 2])}, lambda g: c * h(g) ** 2
+
+
+def test_refinement_halves_every_step_until_the_estimate_meets_the_tolerance():
+    evaluate, error = _second_order()
+    g = Grid(coarse=96, fine=4, dwell_steps=100)
+    coarser = ac.coarser_grid(g, g.squarings)
+    acc, final = ac.estimated(evaluate, g, evaluate(g), coarser, refine=5)
+    assert acc.met and acc.refinements >= 1
+    assert acc.grid.coarse == g.coarse * 2 ** acc.refinements and acc.compared_with.coarse == acc.grid.coarse // 2
+    assert final["dwell_residual_mm"][0] == evaluate(acc.grid)["dwell_residual_mm"][0]
+    # a second-order error: the estimate is 3x the error at a ratio of 2 (covers it, not 10x more)
+    assert acc.errors["dwell_residual_mm"][0] == pytest.approx(3 * error(acc.grid), rel=1e-6)
+    # the grid before the last refinement missed the tolerance (no refinement beyond need)
+    prev = acc.grid._replace(coarse=acc.grid.coarse // 2)
+    assert 3 * error(prev) > 0.005 * evaluate(prev)["dwell_residual_mm"][0]
+    # no refinement allowed: reported as missed, on the grid given
+    acc0, final0 = ac.estimated(evaluate, g, evaluate(g), coarser, refine=0)
+    assert not acc0.met and acc0.refinements == 0 and acc0.grid == g
+
+
+@pytest.mark.xdist_group("commands")
+def test_sweep_estimate_covers_the_error_against_a_quartered_grid():
+    """The default grid's estimate on the 6 kg, 0.43 s Lamé runs of the four paper laws against the
+    error measured on a grid with every step 4x shorter (its own error is about 1/16 of the
+    default's): the estimate meets the tolerance, and covers the measured error in the worst run
+    and in every run whose error is a sizeable part (a quarter) of its tolerance. The estimate is
+    not zero: the grid's error is not (the step matters at 1e-4 relative)."""
+    robot, cycle = robot_preset("default"), cycle_preset()
+    cfg = dict(blends=("lame",), timed=False)
+    res = run_sweep(robot, cycle, [Case(6.0, 0.43)], SweepConfig(**cfg))
+    acc = res.accuracy
+    assert acc is not None and acc.met and acc.refinements == 0 and acc.ratio == 2.0
+    assert res.grid == default_grid(robot, [0.43], 0.1)
+    ref_grid = res.grid._replace(coarse=4 * res.grid.coarse, dwell_steps=4 * res.grid.dwell_steps)
+    ref = run_sweep(robot, cycle, [Case(6.0, 0.43)], SweepConfig(grid=ref_grid, estimate=False, **cfg))
+    m = "dwell_residual_mm"
+    err = np.abs(res.metrics[m] - ref.metrics[m])
+    est = acc.errors[m]
+    assert np.all(est > 0) and np.max(est) >= np.max(err), (est, err)
+    big = err > 0.25 * acc.tolerance_mm
+    assert np.all(est[big] >= err[big]), (est, err, acc.tolerance_mm)
+    # every metric: the estimate is a small fraction of the value (the default grid is converged)
+    for k, e in acc.errors.items():
+        if k != "residual_acc":                 # undamped kHz modes at one instant (docs/conventions.md#metrics)
+            assert np.all(e <= 0.01 * np.abs(res.metrics[k])), k
+
+
+@pytest.mark.xdist_group("commands")
+def test_the_default_grid_refines_until_the_tolerance_is_met_and_a_given_dt_that_misses_it_is_warned():
+    """The linearized model (one program per grid), Lamé/poly7 at 0.1 kg, 0.3 s, a tolerance of
+    0.05 % of the dwell residual (ten times tighter than the default). Without dt the default grid
+    misses it, so every step is halved until the estimate meets it; the results come from the
+    refined grid. The same step given as dt: no refinement, the results on that grid, and a
+    StepWarning stating the estimate and the tolerance (the same grids: nothing compiles again)."""
+    robot, cycle = robot_preset("default"), cycle_preset()
+    cfg = dict(blends=("lame",), profiles=("poly7",), second_order=False, timed=False, rtol=5e-4)
+    res = run_sweep(robot, cycle, [Case(0.1, 0.3)], SweepConfig(refine=3, **cfg))
+    acc = res.accuracy
+    base = default_grid(robot, [0.3], 0.1)
+    assert acc.met and acc.refinements >= 1 and res.grid.coarse == base.coarse * 2 ** acc.refinements
+    assert res.grid == acc.grid and acc.errors["dwell_residual_mm"][0, 0, 0] <= acc.tolerance_mm[0, 0, 0]
+    assert math.isclose(acc.rtol, 5e-4)
+    with warnings.catch_warnings(record=True) as said:
+        warnings.simplefilter("always", StepWarning)
+        res = run_sweep(robot, cycle, [Case(0.1, 0.3)], SweepConfig(dt=DEFAULT_DT, **cfg))
+    text = [str(w.message) for w in said if "misses the accuracy" in str(w.message)]
+    acc = res.accuracy
+    assert res.grid == base and not acc.met and acc.refinements == 0 and len(text) == 1, [str(w.message) for w in said]
+    idx, err, tol = ac.worst(acc)
+    assert err > tol and f"{1e3 * err:.3g} um" in text[0] and f"{1e3 * tol:.3g} um" in text[0], text
