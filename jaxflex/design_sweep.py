@@ -1,9 +1,11 @@
 """Metrics of many designs on one robot: fixed-size chunks of one compiled program, sharded over devices.
 
 ``sweep_designs`` evaluates thousands of designs (``jaxflex.designs.Design``) in fixed-size chunks
-(one compilation, bounded memory) and shards each chunk over all local devices with
-``jax.sharding``; on CPU, ``XLA_FLAGS=--xla_force_host_platform_device_count=2`` exposes two
-devices. Each design runs every stage of ``jaxflex.rollout`` as one traced function.
+(one compilation, bounded memory) and shards each chunk over every device of every process with
+``jax.sharding`` (``jaxflex.runtime.distributed``: in several processes joined by
+``jax.distributed``, every process calls it with the same arguments and gets every result); on
+CPU, ``XLA_FLAGS=--xla_force_host_platform_device_count=2`` exposes two devices to one process.
+Each design runs every stage of ``jaxflex.rollout`` as one traced function.
 """
 from __future__ import annotations
 
@@ -15,7 +17,6 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax.sharding import NamedSharding, PartitionSpec
 
 from jaxflex import checks
 from jaxflex.blends import ALL_BLENDS
@@ -25,6 +26,7 @@ from jaxflex.problem import Timing
 from jaxflex.profiles import shaped
 from jaxflex.progress import Progress
 from jaxflex.robot import Robot
+from jaxflex.runtime import distributed
 from jaxflex.rollout import design_rollout
 from jaxflex.sweep import default_grid
 
@@ -52,7 +54,7 @@ class DesignSweepConfig:
     grid for tf, ``jaxflex.sweep.default_grid``), the designs' ``blend`` family, the shaped law's
     end-factor ``order``, the model order (``second_order``, ``simulate.rollout``), the ``chunk``
     of designs per compiled call (default 4 per device) and the ``devices`` it is sharded over
-    (default: every local device); ``progress`` on stderr."""
+    (default: every device of every process); ``progress`` on stderr (process 0)."""
 
     timing: Timing = Timing()
     blend: str = "lame"
@@ -95,27 +97,27 @@ def sweep_designs(robot: Robot, cycle: Cycle, xs: Design,
         except ValueError as err:
             raise ValueError(f"design {i}: {err}") from None
     grid = grid if grid is not None else default_grid(robot, [tf], dwell)
-    devices = list(jax.local_devices() if devices is None else devices)
+    shard = distributed.batch_sharding("design", devices)
+    devices = list(shard.mesh.devices.flat)
     chunk = chunk or 4 * len(devices)
     if chunk % len(devices):
         raise ValueError(f"chunk {chunk} is not a multiple of the {len(devices)} devices")
-    mesh = jax.sharding.Mesh(np.asarray(devices), ("design",))
-    shard = NamedSharding(mesh, PartitionSpec("design"))
     pad = -size % chunk
-    padded = Design(*(jnp.concatenate([v, jnp.repeat(v[-1:], pad, axis=0)]) for v in leaves))
-    scalars = (jnp.asarray(tf, dtype=float), jnp.asarray(dwell, dtype=float))
-    parts = [jax.tree_util.tree_map(lambda v: v[i:i + chunk], padded) for i in range(0, size + pad, chunk)]
-    bar = Progress(f"design sweep ({size} designs)", total=size, unit="design", enabled=config.progress)
+    padded = [np.concatenate([v, np.repeat(v[-1:], pad, axis=0)]) for v in host]
+    scalars = (np.asarray(tf, dtype=float), np.asarray(dwell, dtype=float))
+    part = lambda i: Design(*(distributed.rows_array(lambda lo, hi, v=v: v[i + lo:i + hi], chunk, shard)
+                              for v in padded))
+    bar = Progress(f"design sweep ({size} designs)", total=size, unit="design",
+                   enabled=config.progress and distributed.is_leader())
     t0 = time.perf_counter()
     with bar.waiting("compiling the batched rollout", key=f"compile design sweep {chunk} {grid}"):
-        compiled = _metrics_batch.lower(robot, cycle, jax.device_put(parts[0], shard), *scalars, grid=grid,
+        compiled = _metrics_batch.lower(robot, cycle, part(0), *scalars, grid=grid,
                                         blend=blend, order=order, second_order=second_order).compile()
     compile_s = time.perf_counter() - t0
     out, t0 = [], time.perf_counter()
-    for i, part in enumerate(parts):
-        res = compiled(robot, cycle, jax.device_put(part, shard), *scalars)
-        out.append({k: np.asarray(v) for k, v in res.items()})
-        bar.update(min((i + 1) * chunk, size))
+    for i in range(0, size + pad, chunk):
+        out.append(distributed.gather(compiled(robot, cycle, part(i), *scalars)))
+        bar.update(min(i + chunk, size))
     bar.close()
     run_s = time.perf_counter() - t0
     mets = {k: np.concatenate([o[k] for o in out])[:size] for k in out[0]}
