@@ -1,7 +1,8 @@
 """The rollouts' error estimate (``jaxflex.accuracy``): the step-doubling formula and the grids it
-compares, the refinement loop on a metric of known order, and on real rollouts: the estimate against
-the error measured on a grid with every step four times shorter, the warning for a ``dt`` that
-misses the tolerance and the grid refined when the default one misses it."""
+compares, the refinement loop on a metric of known order, and on real rollouts: the grid refined
+when the default one misses the tolerance, the warning for a ``dt`` that misses it, and the
+estimate against the error measured on a grid with every step four times shorter. (The CLI's
+sweep checks the default grid meets it on the paper's 6 kg case: tests/test_cli.py.)"""
 import math
 import warnings
 
@@ -69,47 +70,22 @@ def test_refinement_halves_every_step_until_the_estimate_meets_the_tolerance():
 
 
 @pytest.mark.xdist_group("commands")
-def test_sweep_estimate_covers_the_error_against_a_quartered_grid():
-    """The default grid's estimate on the 6 kg, 0.43 s Lamé runs of the four paper laws against the
-    error measured on a grid with every step 4x shorter (its own error is about 1/16 of the
-    default's): the estimate meets the tolerance, and covers the measured error in the worst run
-    and in every run whose error is a sizeable part (a quarter) of its tolerance. The estimate is
-    not zero: the grid's error is not (the step matters at 1e-4 relative)."""
-    robot, cycle = robot_preset("default"), cycle_preset()
-    cfg = dict(blends=("lame",), timed=False)
-    res = run_sweep(robot, cycle, [Case(6.0, 0.43)], SweepConfig(**cfg))
-    acc = res.accuracy
-    assert acc is not None and acc.met and acc.refinements == 0 and acc.ratio == 2.0
-    assert res.grid == default_grid(robot, [0.43], 0.1)
-    ref_grid = res.grid._replace(coarse=4 * res.grid.coarse, dwell_steps=4 * res.grid.dwell_steps)
-    ref = run_sweep(robot, cycle, [Case(6.0, 0.43)], SweepConfig(grid=ref_grid, estimate=False, **cfg))
-    m = "dwell_residual_mm"
-    err = np.abs(res.metrics[m] - ref.metrics[m])
-    est = acc.errors[m]
-    assert np.all(est > 0) and np.max(est) >= np.max(err), (est, err)
-    big = err > 0.25 * acc.tolerance_mm
-    assert np.all(est[big] >= err[big]), (est, err, acc.tolerance_mm)
-    # every metric: the estimate is a small fraction of the value (the default grid is converged)
-    for k, e in acc.errors.items():
-        if k != "residual_acc":                 # undamped kHz modes at one instant (docs/conventions.md#metrics)
-            assert np.all(e <= 0.01 * np.abs(res.metrics[k])), k
-
-
-@pytest.mark.xdist_group("commands")
 def test_the_default_grid_refines_until_the_tolerance_is_met_and_a_given_dt_that_misses_it_is_warned():
     """The linearized model (one program per grid), Lamé/poly7 at 0.1 kg, 0.3 s, a tolerance of
-    0.05 % of the dwell residual (ten times tighter than the default). Without dt the default grid
-    misses it, so every step is halved until the estimate meets it; the results come from the
+    0.1 % of the dwell residual (five times tighter than the default; the default grid's estimate is
+    about 0.24 %, one refinement's about a quarter of that). Without dt the default grid misses it, so every step is halved until the estimate meets it; the results come from the
     refined grid. The same step given as dt: no refinement, the results on that grid, and a
-    StepWarning stating the estimate and the tolerance (the same grids: nothing compiles again)."""
+    StepWarning stating the estimate and the tolerance (the same grids: nothing compiles again).
+    That estimate covers the error measured against every step quartered. (The 24 paper runs of the
+    second-order model against the quartered grid: ``reproduce``'s convergence study.)"""
     robot, cycle = robot_preset("default"), cycle_preset()
-    cfg = dict(blends=("lame",), profiles=("poly7",), second_order=False, timed=False, rtol=5e-4)
+    cfg = dict(blends=("lame",), profiles=("poly7",), second_order=False, timed=False, rtol=1e-3)
     res = run_sweep(robot, cycle, [Case(0.1, 0.3)], SweepConfig(refine=3, **cfg))
     acc = res.accuracy
     base = default_grid(robot, [0.3], 0.1)
     assert acc.met and acc.refinements >= 1 and res.grid.coarse == base.coarse * 2 ** acc.refinements
     assert res.grid == acc.grid and acc.errors["dwell_residual_mm"][0, 0, 0] <= acc.tolerance_mm[0, 0, 0]
-    assert math.isclose(acc.rtol, 5e-4)
+    assert math.isclose(acc.rtol, 1e-3)
     with warnings.catch_warnings(record=True) as said:
         warnings.simplefilter("always", StepWarning)
         res = run_sweep(robot, cycle, [Case(0.1, 0.3)], SweepConfig(dt=DEFAULT_DT, **cfg))
@@ -118,3 +94,11 @@ def test_the_default_grid_refines_until_the_tolerance_is_met_and_a_given_dt_that
     assert res.grid == base and not acc.met and acc.refinements == 0 and len(text) == 1, [str(w.message) for w in said]
     idx, err, tol = ac.worst(acc)
     assert err > tol and f"{1e3 * err:.3g} um" in text[0] and f"{1e3 * tol:.3g} um" in text[0], text
+    # the estimate against the error measured on a grid with every step 4x shorter (its own error
+    # about 1/16 of the default grid's): it covers it, and by a margin that is not absurd
+    quarter = base._replace(coarse=4 * base.coarse, dwell_steps=4 * base.dwell_steps)
+    ref = run_sweep(robot, cycle, [Case(0.1, 0.3)], SweepConfig(grid=quarter, estimate=False, **cfg))
+    m = "dwell_residual_mm"
+    measured = abs(res.metrics[m][0, 0, 0] - ref.metrics[m][0, 0, 0])
+    estimate = acc.errors[m][0, 0, 0]
+    assert measured <= estimate <= 30 * measured, (measured, estimate)

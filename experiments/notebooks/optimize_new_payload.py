@@ -103,7 +103,7 @@ print(f"new case: {PAYLOAD:g} kg in {TF:g} s, dwell {DWELL:g} s")
 # %%
 if QUICK:
     config = jf.SweepConfig(dwell=DWELL, blends=blends, profiles=jf.PROFILES, grid=grid, with_series=True,
-                         second_order=False, timed=False)
+                         second_order=False, timed=False, estimate=False)   # the quick grid is coarse by design
     res = jf.run_sweep(robot, cycle, [jf.Case(PAYLOAD, TF)], config)
     paper = {k: np.asarray(v) for k, v in res.metrics.items()}               # (blend, law, case)
     paper_blends, paper_profiles = res.blends, res.profiles

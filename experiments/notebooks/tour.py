@@ -108,7 +108,7 @@ else:
     grid = None                               # default: ~0.1 ms steps
     second_order = True
 config = jf.SweepConfig(dwell=DWELL, blends=(BLEND,), profiles=jf.PROFILES, grid=grid, with_series=True,
-                        second_order=second_order)
+                        second_order=second_order, estimate=not QUICK)   # the quick grid is coarse by design
 res = jf.run_sweep(robot, cycle, [jf.Case(PAYLOAD, TF)], config)
 print(f"grid {res.grid}; tables {res.tables_s:.1f} s, compile {res.compile_s:.1f} s, "
       f"run {res.run_s * 1e3:.0f} ms for {len(res.blends) * len(res.profiles)} trajectories")

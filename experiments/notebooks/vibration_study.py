@@ -88,7 +88,8 @@ print("cases:", ", ".join(f"{c.payload:g} kg in {c.tf:g} s" for c in cases))
 
 # %%
 res = jf.run_sweep(robot, cycle, cases, jf.SweepConfig(dwell=DWELL, blends=blends, profiles=jf.PROFILES, grid=grid,
-                                            with_series=True, second_order=second_order))
+                                            with_series=True, second_order=second_order,
+                                            estimate=not QUICK))   # the quick grid is coarse by design
 print(f"{len(res.blends) * len(res.profiles) * len(res.cases)} runs; grid {res.grid}")
 print(f"tables {res.tables_s:.1f} s, rollout compile {res.compile_s:.1f} s, run {res.run_s * 1e3:.0f} ms")
 
