@@ -216,6 +216,17 @@ def kinematics_section(results, fig_dir: Path, out: Path) -> str:
     return "\n".join(lines)
 
 
+def _accuracy_sentence(acc) -> str:
+    """The sweep's error estimate in a sentence (docs/conventions.md#accuracy); empty if not estimated."""
+    if not acc:
+        return ""
+    return (f" Every run's discretization error is estimated by step doubling (against a grid {acc['ratio']:.2g}x "
+            f"coarser): the dwell residual's tolerance, {100 * acc['rtol']:g} % of it or {1e6 * acc['atol_mm']:g} nm, is "
+            + ("met" if acc["met"] else "NOT met") + f" in every run (largest estimate "
+            f"{acc['max_estimate_over_tolerance']:.2g} of its tolerance; docs/conventions.md#accuracy; the "
+            "estimates per run are in vibration.json).")
+
+
 def vibration_section(vib: dict, fig_dir: Path, out: Path) -> str:
     """Section 3: the vibration study (Tables 7-11, Fig. 12) from ``vibration.compute``'s record."""
     from . import paper_data
@@ -239,7 +250,7 @@ def vibration_section(vib: dict, fig_dir: Path, out: Path) -> str:
         "motors holding the place pose. Fast formulation (docs/conventions.md#fast-model), "
         f"step {dt * 1e6:.0f} us over the motion (tf/{g['coarse'] * g['fine']}), {g['dwell_steps']} dwell steps; "
         f"all 24 runs through one compiled rollout program: {_sweep_timing(vib['timing'])}. "
-        "Gravity +y (paper: upwards), no damping (as the paper).", "",
+        "Gravity +y (paper: upwards), no damping (as the paper)." + _accuracy_sentence(vib.get("accuracy")), "",
         "### Table 7: 6 kg, tf = 0.43 s, along the motion", "",
         *[cmp(c0[m], paper_data.TABLE7[m], m) + "\n" for m in ("max_torque_nm", "rms_acc_error", "max_deflection_mm")],
         "### Table 8: 6 kg, tf = 0.43 s, residual errors at tf", "",

@@ -15,7 +15,7 @@ from jaxflex.metrics import METRICS, UNITS
 from jaxflex.frequencies import modes_at_point
 from jaxflex.profiles import PROFILES
 from jaxflex.robot import cycle_preset, robot_preset
-from jaxflex.sweep import PAPER_CASES, SweepConfig, run_sweep
+from jaxflex.sweep import PAPER_CASES, SweepConfig, accuracy_record, run_sweep
 
 from . import paper_data
 from .io import fmt, pct, rel_diff, table
@@ -29,8 +29,9 @@ NAMES = {"max_torque_nm": "Torque [N m]", "rms_acc_error": "RMS acceleration err
          "dwell_residual_mm": "Dwell residual amplitude [mm]", "residual_energy": "Residual energy [J]"}
 
 
-def _by_blend(res, metric, case):
-    return {b: {p: float(res.metrics[metric][i, j, case]) for j, p in enumerate(res.profiles)}
+def _by_blend(res, metric, case, values=None):
+    values = res.metrics if values is None else values
+    return {b: {p: float(values[metric][i, j, case]) for j, p in enumerate(res.profiles)}
             for i, b in enumerate(res.blends)}
 
 
@@ -60,6 +61,10 @@ def compute(quick: bool = False) -> dict:
            "timing": {"compile_s": res.compile_s, "run_s": None if quick else res.run_s}}
     for k, case in enumerate(res.cases):
         out[f"case{k}"] = {m: _by_blend(res, m, k) for m in METRICS}
+    out["accuracy"] = accuracy_record(res.accuracy)           # each run's error estimate (docs/conventions.md#accuracy)
+    if res.accuracy is not None:
+        for k, case in enumerate(res.cases):
+            out[f"case{k}_error_estimate"] = {m: _by_blend(res, m, k, res.accuracy.errors) for m in METRICS}
     ext = {}
     for label, (blend, e) in EXTENDED.items():
         print(f"  extended blend {label} (d = 25 mm, e = {e * 1e3:g} mm) ...", flush=True)
