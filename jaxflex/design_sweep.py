@@ -31,11 +31,14 @@ from jaxflex.rollout import design_rollout
 from jaxflex.sweep import default_grid
 
 
-@functools.partial(jax.jit, static_argnames=("grid", "blend", "order", "second_order"))
-def _metrics_batch(robot, cycle, xs, tf, dwell, grid, blend, order, second_order):
-    one = lambda x: design_rollout(robot, cycle, x, tf, dwell, grid, blend=blend, order=order,
-                                   second_order=second_order).terms.metrics
-    return jax.vmap(one)(xs)
+@functools.partial(jax.jit, static_argnames=("grid", "blend", "order", "second_order", "over"))
+def metrics_batch(robot, cycle, x, tf, dwell, grid, blend, order, second_order, over="design"):
+    """Every stage of a design's rollout as one traced function, vmapped over a leading batch axis of
+    the designs ``x`` (``over="design"``) or of the models ``robot`` (``over="robot"``, e.g.
+    ``jaxflex.model_sweep``) -> metrics dict name -> (batch,) arrays."""
+    one = lambda r, xi: design_rollout(r, cycle, xi, tf, dwell, grid, blend=blend, order=order,
+                                       second_order=second_order).terms.metrics
+    return jax.vmap(one, in_axes=(None, 0) if over == "design" else (0, None))(robot, x)
 
 
 class DesignSweep(NamedTuple):
@@ -111,7 +114,7 @@ def sweep_designs(robot: Robot, cycle: Cycle, xs: Design,
                    enabled=config.progress and distributed.is_leader())
     t0 = time.perf_counter()
     with bar.waiting("compiling the batched rollout", key=f"compile design sweep {chunk} {grid}"):
-        compiled = _metrics_batch.lower(robot, cycle, part(0), *scalars, grid=grid,
+        compiled = metrics_batch.lower(robot, cycle, part(0), *scalars, grid=grid,
                                         blend=blend, order=order, second_order=second_order).compile()
     compile_s = time.perf_counter() - t0
     out, t0 = [], time.perf_counter()

@@ -13,7 +13,6 @@ every process calling it with the same arguments: the results are the same.
 from __future__ import annotations
 
 import dataclasses
-import functools
 import time
 from typing import NamedTuple, Sequence
 
@@ -22,6 +21,7 @@ import numpy as np
 
 from jaxflex import checks, trees
 from jaxflex.blends import ALL_BLENDS
+from jaxflex.design_sweep import metrics_batch
 from jaxflex.designs import Design, design_path
 from jaxflex.model_sets import build_model
 from jaxflex.path import Cycle
@@ -29,17 +29,9 @@ from jaxflex.problem import Timing
 from jaxflex.profiles import shaped
 from jaxflex.progress import Progress
 from jaxflex.robot import Robot
-from jaxflex.rollout import design_rollout
 from jaxflex.runtime import distributed
 from jaxflex.sweep import default_grid
 from jaxflex.uncertainty import ModelId
-
-
-@functools.partial(jax.jit, static_argnames=("grid", "blend", "order", "second_order"))
-def _metrics_models(robots, cycle, x, tf, dwell, grid, blend, order, second_order):
-    one = lambda r: design_rollout(r, cycle, x, tf, dwell, grid, blend=blend, order=order,
-                                   second_order=second_order).terms.metrics
-    return jax.vmap(one)(robots)
 
 
 class ModelSweep(NamedTuple):
@@ -120,8 +112,8 @@ def sweep_models(nominal: Robot, cycle: Cycle, x: Design, models: Sequence[Model
     t0 = time.perf_counter()
     first = chunk_robots(0)
     with bar.waiting("compiling the batched rollout", key=f"compile model sweep {chunk} {grid}"):
-        compiled = _metrics_models.lower(first, cycle, x, *scalars, grid=grid, blend=blend, order=config.order,
-                                         second_order=config.second_order).compile()
+        compiled = metrics_batch.lower(first, cycle, x, *scalars, grid=grid, blend=blend, order=config.order,
+                                       second_order=config.second_order, over="robot").compile()
     compile_s = time.perf_counter() - t0
     out, t0 = [], time.perf_counter()
     for start in range(0, len(padded), chunk):
