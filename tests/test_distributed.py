@@ -3,8 +3,8 @@
 with two host devices, the same mesh over the same programs, so the same results bit for bit; and
 both processes hold every model's result (the gather).
 
-Three fresh interpreters each compile the small model's rollout (about 15 s of CPU each with the
-suite's compiler flags; the two distributed ones run side by side)."""
+Three fresh interpreters each compile the small model's rollout (the two distributed ones side by
+side; the cost is in docs/performance.md)."""
 import json
 import os
 import pathlib
