@@ -68,9 +68,11 @@ def text(rec: dict) -> str:
         f"{sv['feedforward']} feedforward, Kp {sv['kp'][0]:.4g} N m/rad, Kd {sv['kd'][0]:.4g} N m s/rad")
     acc = rec.get("accuracy")
     accuracy = "" if acc is None else (
-        f"\n\nDwell residual ± its estimated discretization error (step doubling against a grid "
-        f"{acc['ratio']:.2g}x coarser, docs/conventions.md#accuracy); tolerance {100 * acc['rtol']:g} % of it or "
-        f"{1e6 * acc['atol_mm']:g} nm: " + ("met" if acc["met"] else "MISSED") + f" (largest estimate "
+        "\n\nDwell residual ± its estimated discretization error (" + (
+            f"step doubling against a grid {acc['ratio']:.2g}x coarser" if acc["ratio"] > 1 else
+            "against the same runs with every step halved") + ", docs/conventions.md#accuracy); "
+        f"tolerance {100 * acc['rtol']:g} % of it or {1e6 * acc['atol_mm']:g} nm: "
+        + ("met" if acc["met"] else "MISSED") + " (largest estimate "
         f"{acc['max_estimate_over_tolerance']:.2g} x its tolerance" + (
             f"; the grid refined {acc['refinements']} time(s) to meet it" if acc["refinements"] else "") + ")")
     return (f"Sweep: payload {rec['payload']:g} kg, tf {rec['tf']:g} s, dt {rec['dt']:.3g} s, dwell "

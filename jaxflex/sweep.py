@@ -17,7 +17,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxflex import checks, engine, trees
-from jaxflex.accuracy import DWELL_ATOL_MM, DWELL_RTOL, Accuracy, coarser_grid, estimated, worst
+from jaxflex.accuracy import (DWELL_ATOL_MM, DWELL_RTOL, Accuracy, coarser_grid, estimated, estimated_by_halving,
+                              worst)
 from jaxflex.blends import BLENDS
 from jaxflex.expm import squarings_for
 from jaxflex.linearized import Tables
@@ -191,7 +192,8 @@ class SweepConfig:
     rotor on every case's robot, its feedforward computed for each case's robot; the grid refined to
     its period; docs/conventions.md#servo); None: the perfect controller (the paper's). estimate: every
     run's discretization error estimated by step doubling (``jaxflex.accuracy``; the sweep run again
-    on a grid about twice coarser; not yet under a servo), held to the tolerance on the dwell
+    on a grid about twice coarser; under a servo, whose fine steps stay within the sample period,
+    on the grid with every step halved), held to the tolerance on the dwell
     residual of ``rtol`` of it or ``atol_mm`` [mm], whichever is larger; where the default grid
     misses it, every step is halved up to ``refine`` times (a grid or dt given: never). Results that
     still miss it are warned about (``StepWarning``)."""
@@ -326,8 +328,7 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES,
                 for r, case in zip(case_robots, cases):
                     check_stable(r, c.servo, path, case.tf + dwell)
             servo_tables = [[servo_path_tables(r, path) for r in case_robots] for path in paths]
-        schedules = [engine.sample_schedule(case.tf, dwell, grid, c.servo.rate) for case in cases]
-        servo_inputs = (c.servo, servo_tables, schedules)
+        servo_inputs = (c.servo, servo_tables)
     payloads = jnp.asarray([case.payload for case in cases])
     d_, e_, n_ = (jnp.asarray(v, dtype=float) for v in (c.d, c.e, c.n))
     runs_total = len(blends) * len(profiles) * len(cases)
@@ -342,16 +343,23 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES,
     tf_list = [case.tf for case in cases]
 
     def sweep(grid):
+        inputs = None
+        if servo_inputs is not None:       # where the samples fall in this grid's steps
+            inputs = servo_inputs + ([engine.sample_schedule(tf, dwell, grid, c.servo.rate) for tf in tf_list],)
         series = _sweep_series(values, breaks, lengths, tf_list, dwell, robots, profiles, grid, c.second_order,
-                               servo_inputs)
+                               inputs)
         return engine.metrics_of(series), series
 
-    def timed_sweeps(grid, bar):
+    def first_sweep(grid, bar):
         t0 = time.perf_counter()
         with bar.waiting("the first sweep (compiling the rollout unless cached)", key="sweep-first"):
             mets, series = jax.block_until_ready(sweep(grid))
-        first = time.perf_counter() - t0
         bar.update(note="first sweep")
+        _check_finite(mets, blends, profiles, cases)
+        return mets, series, time.perf_counter() - t0
+
+    def repeated(grid, bar, mets, series, first):
+        """The timed sweeps after the first: (metrics, series, compile_s, run_s)."""
         runs = []
         for _ in range(repeats if timed else 0):
             t0 = time.perf_counter()
@@ -360,28 +368,41 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES,
             bar.update(note="timed sweep")
         bar.close("done")
         run_s = float(np.median(runs)) if runs else float("nan")
-        _check_finite(mets, blends, profiles, cases)
         return mets, series, (max(first - run_s, 0.0) if runs else first), run_s
 
-    mets, series, compile_s, run_s = timed_sweeps(grid, bar)
+    def timed_sweeps(grid, bar):
+        return repeated(grid, bar, *first_sweep(grid, bar))
+
+    refine = c.refine if c.dt is None and c.grid is None else 0
     accuracy = None
-    if c.estimate and c.servo is None:
+    if c.estimate and refine:
+        # the timed sweeps wait for the grid the estimate settles on (a refined grid's are its own)
+        mets, series, first = first_sweep(grid, bar)
+        bar.close("first sweep")
+        start = grid
         accuracy, grid, mets, series, compile_s, run_s = _estimated(
-            c, robot, cases, grid, mets, series, compile_s, run_s, sweep, timed_sweeps,
-            refine=c.refine if c.dt is None and c.grid is None else 0)
-        if not accuracy.met:
-            idx, err, tol = worst(accuracy)
-            b_, p_, k_ = idx
-            who, advice = ((f"dt {c.dt:g} s", "use a smaller dt, or none to have the grid chosen for the tolerance")
-                           if c.dt is not None else
-                           ("the grid given", "use a finer grid, or none to have it chosen for the tolerance")
-                           if c.grid is not None else
-                           (f"the default grid refined {accuracy.refinements} times", "allow more refinements"))
-            warnings.warn(f"{who} misses the accuracy asked for: the estimated error of the dwell residual is "
-                          f"{1e3 * err:.3g} um in run {blends[b_]}/{profiles[p_]} at {cases[k_].payload:g} kg, "
-                          f"tf {cases[k_].tf:g} s, above its tolerance {1e3 * tol:.3g} um (the larger of "
-                          f"{100 * c.rtol:g} % of the residual and {1e6 * c.atol_mm:g} nm); {advice}",
-                          StepWarning, stacklevel=2)
+            c, robot, cases, grid, mets, series, first, float("nan"), sweep, timed_sweeps, refine=refine)
+        if grid == start and timed and repeats:
+            bar = stage(f"sweep of {runs_total} rollouts: timed", total=repeats, unit="sweep", enabled=progress)
+            mets, series, compile_s, run_s = repeated(grid, bar, mets, series, first)
+    else:
+        mets, series, compile_s, run_s = timed_sweeps(grid, bar)
+        if c.estimate:
+            accuracy, grid, mets, series, compile_s, run_s = _estimated(
+                c, robot, cases, grid, mets, series, compile_s, run_s, sweep, timed_sweeps, refine=0)
+    if accuracy is not None and not accuracy.met:
+        idx, err, tol = worst(accuracy)
+        b_, p_, k_ = idx
+        who, advice = ((f"dt {c.dt:g} s", "use a smaller dt, or none to have the grid chosen for the tolerance")
+                       if c.dt is not None else
+                       ("the grid given", "use a finer grid, or none to have it chosen for the tolerance")
+                       if c.grid is not None else
+                       (f"the default grid refined {accuracy.refinements} times", "allow more refinements"))
+        warnings.warn(f"{who} misses the accuracy asked for: the estimated error of the dwell residual is "
+                      f"{1e3 * err:.3g} um in run {blends[b_]}/{profiles[p_]} at {cases[k_].payload:g} kg, "
+                      f"tf {cases[k_].tf:g} s, above its tolerance {1e3 * tol:.3g} um (the larger of "
+                      f"{100 * c.rtol:g} % of the residual and {1e6 * c.atol_mm:g} nm); {advice}",
+                      StepWarning, stacklevel=2)
     return SweepResult(mets, series if c.with_series else None, blends, profiles, cases, grid,
                        compile_s, run_s, tables_s, accuracy)
 
@@ -389,9 +410,30 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES,
 def _estimated(c, robot, cases, grid, mets, series, compile_s, run_s, sweep, timed_sweeps, refine):
     """The error estimate of a sweep's metrics (``jaxflex.accuracy.estimated``): the same sweep on the
     coarser grid and, where the dwell residual misses its tolerance and ``refine`` allows, timed
-    sweeps on refined grids. Returns the accuracy and the final grid's results."""
+    sweeps on refined grids; under a servo (``accuracy.estimated_by_halving``) the same sweep on the
+    grid with every step halved, whose results are taken where the first grid's miss the tolerance.
+    Returns the accuracy and the final grid's results."""
     t_start = time.perf_counter()
     tf_max = max(case.tf for case in cases)
+    if c.servo is not None:
+        # the fine and dwell steps stay within the sample period: compared with every step halved
+        outs = {}
+
+        def halved(g):
+            with stage("error estimate", enabled=c.progress) as bar, \
+                    bar.waiting("the sweep on a grid with every step halved (compiling unless cached)",
+                                key="sweep-estimate"):
+                outs[g] = jax.block_until_ready(sweep(g))
+            _check_finite(outs[g][0], c.blends, c.profiles, cases)
+            return outs[g][0]
+
+        acc, _ = estimated_by_halving(halved, grid, mets, refine=refine, rtol=c.rtol, atol_mm=c.atol_mm)
+        if acc.grid != grid:        # the results of a finer grid: timed as the first grid's were
+            bar = stage("refined grid: every step halved to meet the tolerance",
+                        total=1 + (c.repeats if c.timed else 0), unit="sweep", enabled=c.progress)
+            out = timed_sweeps(acc.grid, bar) if c.timed else outs[acc.grid] + (compile_s, float("nan"))
+            grid, (mets, series, compile_s, run_s) = acc.grid, out
+        return (acc._replace(seconds=time.perf_counter() - t_start), grid, mets, series, compile_s, run_s)
     coarser = coarser_grid(grid, step_squarings(robot, 2 * grid_step(grid, tf_max, c.dwell)))
     if coarser is None:
         raise ValueError(f"the grid {tuple(grid)[:3]} has no coarser grid to estimate its error with; "
@@ -447,7 +489,9 @@ def accuracy_record(acc: Accuracy | None) -> dict | None:
     not estimated."""
     if acc is None:
         return None
-    return {"method": "step doubling: |m - m_coarser| / (r - 1)", "rtol": acc.rtol, "atol_mm": acc.atol_mm,
+    method = ("step doubling: |m - m_coarser| / (r - 1)" if acc.ratio > 1 else
+              "step halving: |m - m_finer| / (1 - r), every step of the comparison r = 1/2 of the results'")
+    return {"method": method, "rtol": acc.rtol, "atol_mm": acc.atol_mm,
             "met": acc.met, "ratio": acc.ratio, "refinements": acc.refinements, "seconds": acc.seconds,
             "grid": acc.grid._asdict(), "compared_with": acc.compared_with._asdict(),
             "max_estimate_over_tolerance": float(np.max(acc.errors["dwell_residual_mm"] / acc.tolerance_mm))}

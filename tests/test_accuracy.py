@@ -69,6 +69,27 @@ def test_refinement_halves_every_step_until_the_estimate_meets_the_tolerance():
     assert not acc0.met and acc0.refinements == 0 and acc0.grid == g
 
 
+def test_halving_bounds_the_error_of_the_grid_given_and_takes_the_finer_results_where_it_misses():
+    """The comparison under a servo (no uniformly coarser grid): the same runs with every step halved.
+    On a second-order metric 2 |m - m_finer| is 1.5 times the error of m; where it misses the
+    tolerance the finer grid's results are taken, with step doubling's estimate against the grid
+    given (3 times their error), and no run beyond what each refinement needs."""
+    evaluate, error = _second_order()
+    calls = []
+    counted = lambda g: calls.append(g) or evaluate(g)
+    g = Grid(coarse=96, fine=4, dwell_steps=100)
+    acc, final = ac.estimated_by_halving(counted, g, evaluate(g), refine=0)
+    assert acc.grid == g and acc.compared_with == ac.finer_grid(g) and acc.ratio == 0.5 and calls == [ac.finer_grid(g)]
+    assert acc.errors["dwell_residual_mm"][0] == pytest.approx(1.5 * error(g), rel=1e-9)
+    assert not acc.met and final["dwell_residual_mm"][0] == evaluate(g)["dwell_residual_mm"][0]
+    calls.clear()
+    acc, final = ac.estimated_by_halving(counted, g, evaluate(g), refine=5)
+    assert acc.met and acc.refinements >= 1 and len(calls) == acc.refinements       # one run per refinement
+    assert acc.grid.coarse == g.coarse * 2 ** acc.refinements and acc.compared_with.coarse == acc.grid.coarse // 2
+    assert acc.errors["dwell_residual_mm"][0] == pytest.approx(3 * error(acc.grid), rel=1e-6)
+    assert final["dwell_residual_mm"][0] == evaluate(acc.grid)["dwell_residual_mm"][0]
+
+
 @pytest.mark.xdist_group("commands")
 def test_the_default_grid_refines_until_the_tolerance_is_met_and_a_given_dt_that_misses_it_is_warned():
     """The linearized model (one program per grid), Lamé/poly7 at 0.1 kg, 0.3 s, a tolerance of

@@ -136,10 +136,13 @@ def test_sweep_command_under_a_servo(tmp_path, capsys):
     text; every residual finite and positive, polar/poly7's 0.856 um (the fast model's, within 1 %:
     a gain or feedforward a few percent off moves it more; the fast model against the full one is
     test_servo_fast.py's), far below the perfect controller's 67 um (the servo damps the modes that
-    involve the motors)."""
+    involve the motors).
+
+    Every run's error estimate, from the same sweep with every step halved (the step given, the
+    default's 1e-4 s: no refinement), within the tolerance (docs/conventions.md#accuracy)."""
     path = tmp_path / "s.json"
-    out, _ = _run(["sweep", "--payload", "0.1", "--tf", "0.3", "--servo", "40", "--repeats", "0",
-                   "--json", path], capsys)
+    out, err = _run(["sweep", "--payload", "0.1", "--tf", "0.3", "--servo", "40", "--repeats", "0", "--dt", "1e-4",
+                     "--json", path], capsys)
     rec = json.loads(path.read_text())
     sv = rec["servo"]
     assert sv["fc"] == 40.0 and sv["rate"] == 8000.0 and sv["rotor_inertia"] == 0.01 and sv["feedforward"] == "rigid"
@@ -150,6 +153,12 @@ def test_sweep_command_under_a_servo(tmp_path, capsys):
     polar = next(r for r in rec["results"] if (r["blend"], r["profile"]) == ("polar", "poly7"))
     assert polar["dwell_residual_mm"] * 1e3 == pytest.approx(0.856, rel=0.01)
     assert "servo fc 40 Hz" in out
+    acc = rec["accuracy"]
+    assert acc["ratio"] == 0.5 and acc["compared_with"]["coarse"] == 2 * rec["grid"]["coarse"] and acc["met"]
+    assert acc["refinements"] == 0 and 0 < acc["max_estimate_over_tolerance"] <= 1
+    worst = max(r["error_estimate"]["dwell_residual_mm"] / r["dwell_residual_tolerance_mm"] for r in rec["results"])
+    assert worst == pytest.approx(acc["max_estimate_over_tolerance"], rel=1e-12)
+    assert "misses the accuracy" not in err and "every step halved" in out and "it or 1 nm: met" in out
 
 
 def _read_csv(path):
