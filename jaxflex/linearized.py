@@ -191,8 +191,10 @@ def remainder(robot: Robot, qa, qa1, qa2, ds, dds, x, qedd):
     (q_a,s = qa1, q_a,ss = qa2) and the elastic state x = [q_e, q_e'] (2 ne,) with acceleration
     qedd (ne,), the full equations read R(z) = M(q) [q_a''; q_e''] + F(q, q') = [tau; 0] with
     z = [q_e, q_e', q_e'']. The linearized model keeps R(0) + R'(0) z; this returns the rest,
-    R(z) - R(0) - R'(0) z = O(|z|^2): rows [:2] add to the motor torques [N m], rows [2:] (with a
-    minus sign) to the elastic forcing f. Used by the second-order rollout (``simulate.rollout``)."""
+    R(z) - R(0) - R'(0) z = O(|z|^2), to second order (its even part; the cubic term, O(|z|^3) as
+    what the second-order model leaves out, is not included): rows [:2] add to the motor torques
+    [N m], rows [2:] (with a minus sign) to the elastic forcing f. Used by the second-order rollout
+    (``simulate.rollout``)."""
     ne = x.shape[0] // 2
     qad = qa1 * ds
     qadd = qa2 * ds**2 + qa1 * dds
@@ -201,16 +203,17 @@ def remainder(robot: Robot, qa, qa1, qa2, ds, dds, x, qedd):
         return mdl.residual(robot, qa, z[:ne], qad, z[ne:2 * ne], qadd, z[2 * ne:])
 
     z = jnp.concatenate([x, qedd])
-    # R(tz) at t = 0, 1/2, -1/2, 1, -1 (one vmapped trace of the model) and R'(0) z by Richardson
-    # extrapolation of the central differences (exact up to the fifth-order term, |z|^5 ~ 1e-25
-    # here): the same value as a JVP to round-off (~1e-12 N of ~1e-3..1e-2 N), without nesting the
-    # model's own derivatives inside a second derivative, which keeps the compiled rollout and its
-    # gradient much smaller
-    r0, rp, rm, r1, r1m = jax.vmap(lambda t: full(t * z))(jnp.asarray(REMAINDER_T))
-    return (r1 - r0) - (8.0 * (rp - rm) - (r1 - r1m)) / 6.0
+    # R(tz) at t = 0, 1, -1 (one vmapped trace of the model): the even part (R(z) + R(-z)) / 2 - R(0)
+    # = R''(0)[z, z] / 2 + O(|z|^4) is the remainder but for its cubic term R'''(0)[z, z, z] / 6, of the
+    # order of |z| / (link length) ~ 1e-3 of it: the same order, O(|z|^3), as what the second-order
+    # model leaves out anyway. It keeps the model's own derivatives out of the compiled rollout and
+    # its gradient (a JVP nested in them would make both several times larger), and costs three
+    # evaluations of the model per site (docs/performance.md: the effect on the metrics)
+    r0, r1, r1m = jax.vmap(lambda t: full(t * z))(jnp.asarray(REMAINDER_T))
+    return 0.5 * (r1 + r1m) - r0
 
 
-REMAINDER_T = (0.0, 0.5, -0.5, 1.0, -1.0)
+REMAINDER_T = (0.0, 1.0, -1.0)
 
 
 def path_pose(robot: Robot, path: Path, s):

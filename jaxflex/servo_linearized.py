@@ -92,5 +92,5 @@ def servo_remainder(robot: Robot, qa, qa1, qa2, ds, dds, x, zdd):
         return mdl.residual(robot, qa + z[:2], z[2:], qad + zd[:2], zd[2:], qadd + za[:2], za[2:])
 
     w = jnp.concatenate([x, zdd])
-    r0, rp, rm, r1, r1m = jax.vmap(lambda t: full(t * w))(jnp.asarray(REMAINDER_T))
-    return (r1 - r0) - (8.0 * (rp - rm) - (r1 - r1m)) / 6.0
+    r0, r1, r1m = jax.vmap(lambda t: full(t * w))(jnp.asarray(REMAINDER_T))     # the even part, as there
+    return 0.5 * (r1 + r1m) - r0

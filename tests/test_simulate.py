@@ -208,9 +208,10 @@ def test_non_finite_metrics_name_the_run():
 
 
 def test_second_order_remainder_is_quadratic_and_consistent_with_tables(setup):
-    """linearized.remainder is the full model minus its linearization: it must scale as eps^2 with the
-    elastic state (ratio 4 when doubled, to O(eps^3)) and vanish against the tables' own linear
-    model: R(z) - remainder(z) = R(0) + R'(0) z, whose elastic rows are M q'' + C q' + K q - f."""
+    """linearized.remainder is the full model minus its linearization, to second order: it must scale
+    as eps^2 with the elastic state (ratio 4 when doubled) and vanish against the tables' own linear
+    model: R(z) - remainder(z) = R(0) + R'(0) z (to the cubic term it leaves out), whose elastic rows
+    are M q'' + C q' + K q - f."""
     from jaxflex.linearized import evaluate, remainder
     remainder = jax.jit(remainder)
     robot, path, tables = setup
@@ -218,8 +219,8 @@ def test_second_order_remainder_is_quadratic_and_consistent_with_tables(setup):
     qa, qa1, qa2 = node.qa, node.qa1, node.qa2
     ds, dds = 1.3, -7.0
     rng = np.random.default_rng(3)
-    # amplitudes of the order of the real deflections (the cubic terms of the stiff axial rows stay
-    # below 3 % of the quadratic ones here; at 1e-4 they reach 40 %)
+    # amplitudes of the order of the real deflections (the cubic terms of the stiff axial rows, which
+    # the remainder leaves out, stay below 3 % of the quadratic ones here; at 1e-4 they reach 40 %)
     x, qdd = jnp.asarray(rng.normal(size=24) * 1e-6), jnp.asarray(rng.normal(size=12) * 1e-3)
     r1 = remainder(robot, qa, qa1, qa2, ds, dds, x, qdd)
     r2 = remainder(robot, qa, qa1, qa2, ds, dds, 2 * x, 2 * qdd)
