@@ -132,9 +132,29 @@ def _time_value_and_grad(f, params, gradient, repeats: int, forward: bool) -> di
     return rec
 
 
-def compute(repeats: int = 5, quick: bool = False) -> dict:
+def servo_sweep_bench(robot, cycle, fc: float, repeats: int) -> dict:
+    """The 24 paper rollouts under a servo of bandwidth ``fc`` [Hz] (8 kHz, 0.01 kg m^2 rotor, rigid
+    feedforward, each payload's default gains, ``jaxflex.servo.cycle_servo``): one sweep per paper
+    case (a servo's gains belong to its payload), the error estimate off as in the perfect
+    controller's timing. Returns the summed times [s] and the per-case grids."""
+    from jaxflex.servo import cycle_servo
+
+    out = {"fc": fc, "rollouts": 0, "tables_s": 0.0, "compile_s": 0.0, "run_s": 0.0, "grids": []}
+    for case in PAPER_CASES:
+        servo = cycle_servo(robot.replace(payload=case.payload), cycle, fc)
+        res = run_sweep(robot, cycle, [case], SweepConfig(repeats=repeats, estimate=False, servo=servo))
+        out["rollouts"] += 12
+        for key in ("tables_s", "compile_s", "run_s"):
+            out[key] += getattr(res, key)
+        out["grids"].append(res.grid._asdict())
+    out["per_rollout_ms"] = 1e3 * out["run_s"] / out["rollouts"]
+    return out
+
+
+def compute(repeats: int = 5, quick: bool = False, servo: float | None = None) -> dict:
     """Time the 24-rollout sweep and the optimizer's gradients (median of ``repeats``); the JSON
-    record. ``quick``: the design gradient only, without the forward-only and law timings."""
+    record. ``quick``: the design gradient only, without the forward-only and law timings.
+    ``servo`` [Hz]: also the 24 rollouts under a servo of that bandwidth (``servo_sweep_bench``)."""
     started = time.time()
     repeats = checks.count("repeats", repeats)
     robot, cycle = robot_preset("default"), cycle_preset()
@@ -149,6 +169,12 @@ def compute(repeats: int = 5, quick: bool = False) -> dict:
     print(f"  tables (3 blends x 2 payloads, compile included) {res.tables_s:.1f} s")
     print(f"  rollout programs: compile {res.compile_s:.1f} s, run {res.run_s * 1e3:.0f} ms "
           f"({sweep['per_rollout_ms']:.1f} ms per rollout, {sweep['steps_per_s']:.3g} steps/s)", flush=True)
+    servo_rec = None
+    if servo is not None:
+        print(f"the same 24 rollouts under a servo, fc {servo:g} Hz at 8 kHz (one sweep per case) ...", flush=True)
+        servo_rec = servo_sweep_bench(robot, cycle, servo, repeats)
+        print(f"  tables {servo_rec['tables_s']:.1f} s; rollout programs: compile {servo_rec['compile_s']:.1f} s, "
+              f"run {servo_rec['run_s'] * 1e3:.0f} ms ({servo_rec['per_rollout_ms']:.1f} ms per rollout)", flush=True)
     print("the optimizer's value and gradient (6 kg, tf 0.43 s, one model, reverse mode) ...", flush=True)
     grad = gradient_bench(repeats, quick=quick)
     for key, what in (("design", "6 blend parameters + 6 law coefficients, tables rebuilt from the workspace"),
@@ -165,16 +191,16 @@ def compute(repeats: int = 5, quick: bool = False) -> dict:
         if "stages_s" in g:
             print("    its programs on one model, one at a time: " + ", ".join(
                 f"{name} {t * 1e3:.1f} ms" for name, t in g["stages_s"].items()), flush=True)
-    rec = {"sweep": sweep, "gradient": grad, "peak_rss_mb": _peak_rss_mb(), "quick": quick,
+    rec = {"sweep": sweep, "servo_sweep": servo_rec, "gradient": grad, "peak_rss_mb": _peak_rss_mb(), "quick": quick,
            "devices": [str(d) for d in jax.devices()],
-           "provenance": provenance({"repeats": repeats, "quick": quick}, started)}
+           "provenance": provenance({"repeats": repeats, "quick": quick, "servo": servo}, started)}
     print(f"peak memory {rec['peak_rss_mb']:.0f} MB")
     return rec
 
 
-def run(repeats: int = 5, json_path=None, quick: bool = False) -> dict:
+def run(repeats: int = 5, json_path=None, quick: bool = False, servo: float | None = None) -> dict:
     """``jaxflex bench``: ``compute`` and, with ``json_path``, write its record there."""
-    rec = compute(repeats, quick)
+    rec = compute(repeats, quick, servo)
     if json_path:
         write_json(json_path, rec)
     return rec

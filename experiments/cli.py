@@ -191,6 +191,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--repeats", type=int, default=5, help="timed repeats (default: %(default)s)")
     p.add_argument("--quick", action="store_true",
                    help="the sweep and the design gradient only (no forward-only or law timings)")
+    p.add_argument("--servo", type=float, metavar="FC",
+                   help="also time the 24 rollouts under a sampled PD servo of bandwidth FC [Hz] (8 kHz, "
+                        "0.01 kg m^2 rotor, rigid feedforward, each payload's default gains; "
+                        "docs/conventions.md#servo)")
 
     p = sub.add_parser("reproduce", help="the main job: every table and figure of the paper",
                        description="Reproduce the paper's tables and figures, ours beside the "
@@ -277,7 +281,7 @@ def main(argv=None) -> int:
         elif args.command == "bench":
             from jaxflex.experiments import bench
 
-            bench.run(repeats=args.repeats, json_path=args.json, quick=args.quick)
+            bench.run(repeats=args.repeats, json_path=args.json, quick=args.quick, servo=args.servo)
         elif args.command == "reproduce":
             from jaxflex.experiments import reproduce
 

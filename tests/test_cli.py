@@ -262,6 +262,30 @@ def test_bench_command(tmp_path, capsys):
     assert rec["peak_rss_mb"] > 0 and "rollout program" in out
 
 
+def test_bench_servo_times_each_case_under_its_own_payloads_gains(monkeypatch, capsys):
+    """``bench --servo FC``'s servo sweep (the sweeps themselves stubbed: they are the sweep command's
+    and test_servo_fast.py's): one sweep per paper case, each under the default gains of its own
+    payload (a 6 kg robot's gains on the 0.1 kg one could be unstable), times summed over the 24 runs."""
+    from types import SimpleNamespace
+
+    from jaxflex.experiments import bench
+    from jaxflex.robot import cycle_preset, robot_preset
+    from jaxflex.simulate import Grid
+
+    seen = []
+
+    def fake(robot, cycle, cases, config):
+        seen.append((cases[0].payload, config.servo, config.estimate))
+        return SimpleNamespace(tables_s=1.0, compile_s=2.0, run_s=0.25, grid=Grid())
+
+    monkeypatch.setattr(bench, "run_sweep", fake)
+    out = bench.servo_sweep_bench(robot_preset("default"), cycle_preset(), 40.0, repeats=1)
+    assert [p for p, _, _ in seen] == [6.0, 0.1] and not any(e for _, _, e in seen)
+    (_, heavy, _), (_, light, _) = seen
+    assert heavy.fc == light.fc == 40.0 and np.all(np.asarray(heavy.kp) > 2 * np.asarray(light.kp))
+    assert out["rollouts"] == 24 and out["run_s"] == 0.5 and out["per_rollout_ms"] == pytest.approx(500 / 24)
+
+
 @pytest.mark.xdist_group("commands")
 def test_reproduce_quick_command(tmp_path, capsys):
     """The main job's smoke run: every section, REPORT.md, its JSON/CSV and figures."""
