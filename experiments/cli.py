@@ -146,6 +146,10 @@ def build_parser() -> argparse.ArgumentParser:
                         "default: %(default)s)")
     p.add_argument("--law-only", dest="free_path", action="store_false",
                    help="optimize the motion law only, on the best paper combination's path")
+    p.add_argument("--init", metavar="FILE",
+                   help="start from the design in FILE, the JSON of an earlier jaxflex optimize run (its "
+                        "perfect-controller design: blends and law; with --law-only its law); with --steps 0 "
+                        "that design is evaluated, exported and, with --servo, refined as it is")
     p.add_argument("--verify", action="store_true",
                    help="re-simulate the best paper combination and the optimized trajectory at a quarter "
                         "step and with the full nonlinear model (exponential integrator, step 2e-5 s; this adds to the "
@@ -307,12 +311,17 @@ def main(argv=None) -> int:
 def study_config(args) -> StudyConfig:
     """The ``StudyConfig`` of ``jaxflex optimize``'s arguments (validated when the study starts)."""
     worst = args.objective == "worst"
+    init = None
+    if getattr(args, "init", None):
+        from jaxflex.experiments.io import initial_design
+
+        init = initial_design(args.init, args.blend if args.free_path else None, STUDY.train.order)
     return dataclasses.replace(
         STUDY.with_optimizer(steps=args.steps, learning_rate=args.lr).with_train(
             blend=args.blend, power=ROBUST_POWER if worst else 1.0),
         n_coef=args.coef, training_set=args.train, absolute=worst,
         box=Box(args.box_young, args.box_payload, tuple(args.box_damping), args.box_length, args.box_rotor).checked(),
-        box_points=args.box_points, box_samples=args.box_samples, richer_modes=args.richer_modes)
+        box_points=args.box_points, box_samples=args.box_samples, richer_modes=args.richer_modes, init=init)
 
 
 HUGEPAGES = "glibc.malloc.hugetlb=1"

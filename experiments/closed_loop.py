@@ -8,9 +8,8 @@ residual at several bandwidths; ``figure`` draws it.
 from __future__ import annotations
 
 import jax.numpy as jnp
-import numpy as np
 
-from jaxflex.designs import design, design_path
+from jaxflex.designs import design_path
 from jaxflex.optimize.closed_loop import Controller, ServoModel, Trajectory, closed_loop_study, evaluate
 from jaxflex.path import make_path
 from jaxflex.profiles import make_profile, shaped
@@ -18,16 +17,16 @@ from jaxflex.robot import cycle_preset, robot_preset
 from jaxflex.sweep import default_grid
 from jaxflex.uncertainty import ModelId
 
+from .io import design_of_record
+
 FCS = (15.0, 40.0)                          # the bandwidths of the comparison [Hz]
 FIGURE_FCS = (10.0, 15.0, 20.0, 25.0, 30.0, 40.0)
 
 
 def design_of(record: dict):
     """(Design, law, blend family) of an optimization study's record (``experiments.optimize``)."""
-    p, coef = record["design"]["path"], np.asarray(record["design"]["coef"])
-    c = p["corners"]
-    x = design(c[0]["d_m"], c[0]["e_m"], c[0]["n"], coef, d2=c[1]["d_m"], e2=c[1]["e_m"], n2=c[1]["n"])
-    return x, shaped(jnp.asarray(coef), int(record["design"]["order"]), name="optimized"), p["blend"]
+    x, blend, order = design_of_record(record["design"])
+    return x, shaped(jnp.asarray(record["design"]["coef"], dtype=float), order, name="optimized"), blend
 
 
 def case(record: dict, controller: Controller, *, steps: int, samples: int, corners: bool, fcs=FCS,

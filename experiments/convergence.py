@@ -21,7 +21,7 @@ from jaxflex.reference import DEFAULT_DT, METHOD_NAMES, reference_rollout
 from jaxflex.robot import cycle_preset, robot_preset
 from jaxflex.sweep import PAPER_CASES, Case, SweepConfig, default_grid, run_sweep
 
-from .io import table
+from .io import design_of_record, table
 
 INSTANT = ("residual_pos_mm", "residual_vel", "residual_acc", "residual_acc_low", "residual_energy")
 
@@ -108,7 +108,7 @@ def design_estimates(designs, dwell: float = 0.1, refine: int = 3) -> list[dict]
     grid with every step ``2**refine`` times shorter. ``designs``: (label, payload [kg], tf [s],
     design record (``jaxflex optimize``'s ``design``)) tuples."""
     from jaxflex.accuracy import coarser_grid, estimated
-    from jaxflex.designs import design, design_path
+    from jaxflex.designs import design_path
     from jaxflex.engine import LawEvaluator
     from jaxflex.model_sets import model_set
     from jaxflex.profiles import shaped
@@ -117,10 +117,7 @@ def design_estimates(designs, dwell: float = 0.1, refine: int = 3) -> list[dict]
     robot, cycle = robot_preset("default"), cycle_preset()
     out = []
     for label, payload, tf, rec in designs:
-        c = rec["path"]["corners"]
-        x = design(c[0]["d_m"], c[0]["e_m"], c[0]["n"], np.asarray(rec["coef"]), d2=c[1]["d_m"], e2=c[1]["e_m"],
-                   n2=c[1]["n"])
-        blend = rec["path"]["blend"]
+        x, blend, _ = design_of_record(rec)
         grid = default_grid(robot, [tf], dwell)
         coarse, ratio = coarser_grid(grid, step_squarings(robot, 2 * grid_step(grid, tf, dwell)))
         ref = grid._replace(coarse=grid.coarse * 2**refine, dwell_steps=grid.dwell_steps * 2**refine)

@@ -97,3 +97,38 @@ def table(headers, rows) -> str:
     line = lambda r: "| " + " | ".join(c.ljust(w) for c, w in zip(r, widths)) + " |"
     sep = "|" + "|".join("-" * (w + 2) for w in widths) + "|"
     return "\n".join([line(cells[0]), sep] + [line(r) for r in cells[1:]])
+
+
+def design_of_record(record: dict):
+    """(Design, blend family, law order) of the ``design`` entry of ``jaxflex optimize``'s JSON
+    (docs/conventions.md#file-formats): both corners' blend parameters (d, e [m], n; a law-only
+    record: its paper path's, at both corners) and the law's coefficients. Imports JAX."""
+    from jaxflex.designs import design
+
+    p, coef = record["path"], [float(v) for v in record["coef"]]
+    if p.get("free", True):
+        c = p["corners"]
+        x = design(c[0]["d_m"], c[0]["e_m"], c[0]["n"], coef, d2=c[1]["d_m"], e2=c[1]["e_m"], n2=c[1]["n"])
+    else:
+        x = design(p["d"], p["e"], p["n"], coef)
+    return x, p["blend"], int(record.get("order", 3))
+
+
+def initial_design(path, blend: str, order: int):
+    """The design of an earlier ``jaxflex optimize`` JSON at ``path`` to start an optimization from
+    (its ``design`` entry, ``design_of_record``); ValueError, before anything compiles, for a file
+    that holds none or whose blend family or law order differ from the run's (``blend``, ``order``;
+    blend None: any, as a law-only run takes the law alone)."""
+    try:
+        with open(path) as f:
+            record = json.load(f)
+        x, family, law_order = design_of_record(record["design"])
+    except (OSError, ValueError, KeyError, TypeError, IndexError) as err:
+        raise ValueError(f"--init {path}: not the JSON of a jaxflex optimize run with a design "
+                         f"({type(err).__name__}: {err})") from None
+    if blend is not None and family != blend:
+        raise ValueError(f"--init {path}: its design has {family} blends, this run {blend} ones "
+                         f"(give --blend {family})")
+    if law_order != order:
+        raise ValueError(f"--init {path}: its law has end-factor order {law_order}, this run {order}")
+    return x

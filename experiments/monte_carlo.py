@@ -36,7 +36,7 @@ def main(argv=None) -> int:
         distributed.initialize(a.coordinator, a.processes, a.process_id)
     import numpy as np
 
-    from jaxflex.designs import design
+    from jaxflex.experiments.io import design_of_record
     from jaxflex.model_sweep import ModelSweepConfig, sweep_models
     from jaxflex.problem import Timing
     from jaxflex.robot import cycle_preset, robot_preset
@@ -44,13 +44,12 @@ def main(argv=None) -> int:
 
     started = time.time()
     rec = json.load(open(a.design))
-    d, (payload,), tf = rec["design"], rec["payloads"][:1], rec["tf"]
-    c = d["path"]["corners"]
-    x = design(c[0]["d_m"], c[0]["e_m"], c[0]["n"], d["coef"], d2=c[1]["d_m"], e2=c[1]["e_m"], n2=c[1]["n"])
+    (payload,), tf = rec["payloads"][:1], rec["tf"]
+    x, blend, order = design_of_record(rec["design"])
     robot, cycle = robot_preset("default"), cycle_preset()
     models = Box().random([payload], n=a.models, seed=a.seed)
-    res = sweep_models(robot, cycle, x, models, ModelSweepConfig(Timing(tf=tf, dwell=0.1), blend=d["path"]["blend"],
-                                                                 order=d.get("order", 3), per_device=a.per_device,
+    res = sweep_models(robot, cycle, x, models, ModelSweepConfig(Timing(tf=tf, dwell=0.1), blend=blend, order=order,
+                                                                 per_device=a.per_device,
                                                                  progress=True))
     if not distributed.is_leader():
         return 0

@@ -221,6 +221,13 @@ def test_optimize_command_writes_its_outputs_and_resumes(tmp_path, capsys):
     rec2 = json.loads(j2.read_text())
     assert rec2["history"] == rec["history"] and rec2["design"] == rec["design"]
     assert rec2["laws"]["optimized"]["dwell_residual_mm"] == rec["laws"]["optimized"]["dwell_residual_mm"]
+    # a new run from that design (--init) with no step: the same design, evaluated the same way
+    j3 = tmp_path / "o3.json"
+    _run(["optimize", *OPT[:-4], "--steps", "0", "--train", "nominal", "--init", j1, "--box-samples", "0",
+          "--richer-modes", "0", "--json", j3], capsys)
+    rec3 = json.loads(j3.read_text())
+    assert rec3["steps_run"] == 0 and rec3["design"] == rec["design"]
+    assert rec3["laws"]["optimized"]["dwell_residual_mm"] == rec["laws"]["optimized"]["dwell_residual_mm"]
 
 
 @pytest.mark.xdist_group("commands")
@@ -260,6 +267,30 @@ def test_bench_command(tmp_path, capsys):
     assert list(g["stages_s"]) == list(PROGRAMS) and all(t > 0 for t in g["stages_s"].values())
     assert "backward: first pass" in out                                # the per-program line is printed
     assert rec["peak_rss_mb"] > 0 and "rollout program" in out
+
+
+def test_init_takes_the_design_of_a_record_and_refuses_another_blend_family_or_law_order(tmp_path):
+    """``optimize --init FILE``: the design of an earlier run's JSON (both corners, the law), and a
+    clear error, before anything compiles, when its blends or its law's order are not the run's."""
+    from jaxflex.experiments.io import initial_design
+
+    corners = [{"d_m": 0.021, "e_m": 0.03, "n": 3.2}, {"d_m": 0.024, "e_m": 0.035, "n": 3.4}]
+    rec = {"design": {"path": {"blend": "smoothstep", "corners": corners, "free": True}, "law": "shaped",
+                      "order": 3, "coef": [1.0, 1.1, 0.9, 1.0, 1.05, 0.97]}}
+    path = tmp_path / "o.json"
+    path.write_text(json.dumps(rec))
+    x = initial_design(path, "smoothstep", 3)
+    np.testing.assert_array_equal(np.asarray(x.d), [0.021, 0.024])
+    np.testing.assert_array_equal(np.asarray(x.n), [3.2, 3.4])
+    np.testing.assert_array_equal(np.asarray(x.coef), rec["design"]["coef"])
+    with pytest.raises(ValueError, match="smoothstep blends, this run lame"):
+        initial_design(path, "lame", 3)
+    with pytest.raises(ValueError, match="order 3, this run 4"):
+        initial_design(path, "smoothstep", 4)
+    assert initial_design(path, None, 3).coef.shape == (6,)           # a law-only run takes the law alone
+    path.write_text(json.dumps({"laws": {}}))
+    with pytest.raises(ValueError, match="not the JSON of a jaxflex optimize run"):
+        initial_design(path, "smoothstep", 3)
 
 
 def test_bench_servo_times_each_case_under_its_own_payloads_gains(monkeypatch, capsys):
@@ -352,6 +383,7 @@ def compilations():
     (["optimize", "--payload", "0"], "payloads"), (["optimize", "--payload", "nan"], "payloads"),
     (["optimize", "--coef", "0"], "n_coef"), (["optimize", "--cycle-time", "0.4", "-0.3"], "tfs"),
     (["optimize", "--cycle-time", "0.4", "--steps", "-1"], "steps"),
+    (["optimize", "--init", "/nonexistent/optimize.json"], "--init"),
     (["bench", "--repeats", "0"], "repeats"), (["kinematics", "--steps", "0"], "steps"),
     (["modes", "--points", "1"], "points"), (["modes", "--payload", "inf"], "payload"),
 ])
