@@ -297,8 +297,10 @@ def paper_under_servo(robot: Robot, cycle: Cycle, payload: float, tf: float, dwe
 
     servo = cycle_servo(robot.replace(payload=payload), cycle, fc, rate=controller.rate, rotor_inertia=controller.rotor,
                         feedforward="rigid")
+    # on the study's grid, as every other trajectory of the comparison (no estimate, which could move
+    # the paper's combinations to a refined grid): its accuracy is docs/conventions.md#accuracy's
     res = run_sweep(robot, cycle, (Case(payload, tf),), SweepConfig(dwell=dwell, servo=servo, timed=False,
-                                                                    progress=progress))
+                                                                    progress=progress, estimate=False))
     m = {k: np.asarray(v)[..., 0] for k, v in res.metrics.items()}
     i, j = np.unravel_index(np.argmin(m["dwell_residual_mm"]), m["dwell_residual_mm"].shape)
     return m, res.blends, res.profiles, (res.blends[i], res.profiles[j])
