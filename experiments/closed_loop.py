@@ -26,7 +26,7 @@ FIGURE_FCS = (10.0, 15.0, 20.0, 25.0, 30.0, 40.0)
 def design_of(record: dict):
     """(Design, law, blend family) of an optimization study's record (``experiments.optimize``)."""
     x, blend, order = design_of_record(record["design"])
-    return x, shaped(jnp.asarray(record["design"]["coef"], dtype=float), order, name="optimized"), blend
+    return x, shaped(x.coef, order, name="optimized"), blend
 
 
 def case(record: dict, controller: Controller, *, steps: int, samples: int, corners: bool, fcs=FCS,

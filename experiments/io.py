@@ -114,7 +114,7 @@ def design_of_record(record: dict):
     return x, p["blend"], int(record.get("order", 3))
 
 
-def initial_design(path, blend: str, order: int):
+def initial_design(path, blend: str | None, order: int):
     """The design of an earlier ``jaxflex optimize`` JSON at ``path`` to start an optimization from
     (its ``design`` entry, ``design_of_record``); ValueError, before anything compiles, for a file
     that holds none or whose blend family or law order differ from the run's (``blend``, ``order``;

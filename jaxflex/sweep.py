@@ -342,10 +342,14 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES,
     robots = [robot.replace(payload=case.payload) for case in cases]
     tf_list = [case.tf for case in cases]
 
+    schedules = {}          # per grid: where the servo's samples fall in its steps (once, not per timed sweep)
+
     def sweep(grid):
         inputs = None
-        if servo_inputs is not None:       # where the samples fall in this grid's steps
-            inputs = servo_inputs + ([engine.sample_schedule(tf, dwell, grid, c.servo.rate) for tf in tf_list],)
+        if servo_inputs is not None:
+            if grid not in schedules:
+                schedules[grid] = [engine.sample_schedule(tf, dwell, grid, c.servo.rate) for tf in tf_list]
+            inputs = servo_inputs + (schedules[grid],)
         series = _sweep_series(values, breaks, lengths, tf_list, dwell, robots, profiles, grid, c.second_order,
                                inputs)
         return engine.metrics_of(series), series
