@@ -21,7 +21,7 @@ from jaxflex.path import Path
 from jaxflex.profiles import Profile
 from jaxflex.rigid import rigid_torques
 from jaxflex.robot import Robot
-from jaxflex.servo import Servo, feedforward_advance, record, with_rotor
+from jaxflex.servo import Servo, feedforward_advance, record, static_torque, with_rotor
 from jaxflex.simulate import Grid
 from jaxflex.tables import path_tables
 from jaxflex.trajectory import check_cycle_reachable, check_tf, trajectory
@@ -75,18 +75,42 @@ def feedforward_at(kind: str, robot: Robot, path: Path, profile: Profile, tf: fl
 _trajectory = jax.jit(trajectory)      # one program, not the path's and the IGM's operations one by one
 
 
+def rest_torque(kind: str, robot: Robot, qa) -> np.ndarray:
+    """The feedforward (2,) [N m] of kind ``kind`` that holds the robot at rest at the motor angles qa
+    (2,) [rad]: zeros, the rigid robot's static torque, or the elastic model's
+    (``servo.static_torque``). What a servo's feedforward holds through the dwell."""
+    if kind == "none":
+        return np.zeros(2)
+    if kind == "rigid":
+        zero = jnp.zeros((1, 2))
+        return np.asarray(_rigid(robot, jnp.asarray(qa)[None], zero, zero))[0]
+    if kind == "flexible":
+        return np.asarray(static_torque(robot, jnp.asarray(qa)))
+    raise ValueError(f"unknown feedforward {kind!r}; expected one of none, rigid, flexible")
+
+
 def trajectory_table(robot: Robot, path: Path, profile: Profile, tf: float, rate: float = DEFAULT_RATE_HZ,
-                     feedforward: str = "rigid", grid: Grid | None = None, advance: float = 0.0) -> np.ndarray:
+                     feedforward: str = "rigid", grid: Grid | None = None, advance: float = 0.0,
+                     hold_rest: bool = False) -> np.ndarray:
     """The (T, 11) rows of ``COLUMNS`` sampled at ``rate`` [Hz] over [0, tf] [s] (``sample_times``):
     t [s], x, y [m] the desired end-effector position, q1, q2 [rad] the rigid-IGM motor angles,
     their rates [rad/s] and accelerations [rad/s^2], and the ``feedforward`` torque [N m] of the
-    robot (its rotor included; ``feedforward_at`` with ``advance`` [s])."""
+    robot (its rotor included; ``feedforward_at`` with ``advance`` [s]).
+
+    With ``hold_rest`` the row at tf carries the torque a servo holds from tf on, through the dwell:
+    the rest torque at the place (``rest_torque``), as in the closed-loop model
+    (docs/conventions.md#servo). A controller that holds the file's last row after the motion then
+    holds what the design was optimized with. Without it, the row at tf is the motion's left limit,
+    which for the flexible kind includes the reaction of the links' vibration at tf: a few hundredths
+    of a N m which, held, move a soft servo's rest pose by micrometres."""
     t = sample_times(tf, rate)
     check_tf(tf)
     check_cycle_reachable(robot, path.cycle)
     tr = _trajectory(robot, path, profile, jnp.asarray(float(tf)), jnp.asarray(t))
     q, qd, qdd = (np.asarray(a) for a in (tr.q, tr.qd, tr.qdd))
-    tau = feedforward_at(feedforward, robot, path, profile, tf, t, q, qd, qdd, grid, advance)
+    tau = np.array(feedforward_at(feedforward, robot, path, profile, tf, t, q, qd, qdd, grid, advance))
+    if hold_rest:
+        tau[t >= float(tf)] = rest_torque(feedforward, robot, q[-1])
     return np.column_stack([t, np.asarray(tr.x), q, qd, qdd, tau])
 
 
@@ -109,14 +133,15 @@ def write_controller_files(directory, robot: Robot, path: Path, profile: Profile
                            servo: Servo | None = None, rate: float = DEFAULT_RATE_HZ, grid: Grid | None = None,
                            name: str = "trajectory") -> tuple:
     """Write ``<name>.csv`` (``trajectory_table`` at ``rate`` [Hz] with the servo's feedforward kind,
-    the robot with the servo's rotor; without a servo, the perfect controller's torque, "flexible")
+    the robot with the servo's rotor, its row at tf the rest torque the servo holds through the dwell;
+    without a servo, the perfect controller's torque, "flexible")
     and the controller file beside it (``controller_record``; ``controller.json``, or
     ``<name>.controller.json`` for another name) in ``directory``, atomically. Returns both paths."""
     directory = FilePath(directory)
     robot = robot if servo is None else with_rotor(robot, servo)
     kind = "flexible" if servo is None else servo.feedforward
     advance = 0.0 if servo is None else float(feedforward_advance(servo))
-    rows = trajectory_table(robot, path, profile, tf, rate, kind, grid, advance)
+    rows = trajectory_table(robot, path, profile, tf, rate, kind, grid, advance, hold_rest=servo is not None)
     csv = directory / f"{name}.csv"
     with atomic_path(csv) as tmp:
         np.savetxt(tmp, rows, delimiter=",", header=",".join(COLUMNS), comments="", fmt="%.12g")

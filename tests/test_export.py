@@ -81,6 +81,9 @@ def test_the_columns_are_the_motion_its_derivatives_and_the_rigid_feedforward(ri
     power = np.sum(tau * dq, 1)
     de = (energy[2:] - energy[:-2]) / (2 * h)
     assert np.max(np.abs(de - power[1:-1])) < 1e-3 * np.max(np.abs(power))
+    # the row at tf: the torque the servo holds through the dwell, the gravity torque dV/dq at the place
+    grav = np.asarray(jax.grad(lambda a: _rigid_energy(r, a, jnp.zeros(2)))(jnp.asarray(q[-1])))
+    np.testing.assert_allclose(tau[-1], grav, rtol=1e-9, atol=1e-9 * np.max(np.abs(tau)))
 
 
 def test_the_controller_file_states_the_bandwidth_gains_and_every_unit(rigid_files):
@@ -115,6 +118,16 @@ def test_the_flexible_feedforward_differs_from_the_rigid_one_by_the_elastic_part
     diff, peak = np.abs(rigid[:, 9:] - flexible[:, 9:]), np.max(np.abs(rigid[:, 9:]))
     assert 1e-2 * peak < np.max(diff) < 0.3 * peak
     assert np.max(diff[0]) < 0.02 * peak
+    # a servo holds the file's last row after the motion: with ``hold_rest`` (what a servo export
+    # writes) that row is the elastic model's rest torque at the place, the rigid gravity torque to
+    # 1e-3 of the peak (measured 2.4e-5: the sag term), not the motion's left limit, which carries
+    # the reaction of the links' vibration at tf (measured 8.9e-2 of the peak off it, which held
+    # would move the servo's rest pose by millimetres); every other row is unchanged
+    held = export.trajectory_table(robot, PATH, law, TF, 1000, "flexible", hold_rest=True)
+    assert np.array_equal(held[:-1], flexible[:-1]) and np.array_equal(held[-1, :9], flexible[-1, :9])
+    rest = rigid[-1, 9:]                                    # q' = q'' = 0 at tf: the gravity torque
+    assert np.max(np.abs(held[-1, 9:] - rest)) < 1e-3 * peak
+    assert np.max(np.abs(flexible[-1, 9:] - rest)) > 1e-2 * peak
 
 
 def test_the_export_refuses_a_bad_rate():
