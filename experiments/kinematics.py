@@ -13,7 +13,7 @@ import numpy as np
 from jaxflex import checks, plotting
 from jaxflex.blends import BLENDS, blend_frame, make_blend
 from jaxflex.profiles import PROFILES, make_profile, profile_eval
-from jaxflex.robot import cycle_preset, robot_preset
+from jaxflex.robot import check_motion_loads, cycle_preset, robot_preset
 from jaxflex.spectral import welch
 from jaxflex.combinations import sample_combinations
 from jaxflex.trajectory import time_grid
@@ -126,6 +126,7 @@ def compute(preset: str = "default", tf: float = 1.0, steps: int = 20000) -> dic
     and provenance)."""
     started = time.time()
     tf, steps = checks.positive("tf", tf, "s"), checks.count("steps", steps, 2)
+    check_motion_loads(robot_preset(preset), cycle_preset(preset), tf)     # e.g. tf = 1e-300: nothing to sample
     result = {"preset": preset, "tf": tf, "blend_length_mm": blend_lengths_mm()}
     result.update(accelerations(preset, tf, steps))
     result["paper"] = {"blend_length_mm": paper_data.TABLE2_BLEND_LENGTH_MM,

@@ -156,8 +156,44 @@ def cycle_preset(name: str = "default", h: float = 0.025, l: float = 0.35) -> Cy
     return make_cycle((-0.5 * l, y), (0.5 * l, y), h=h, lift=lift)
 
 
+SMALL_DEFLECTION = 0.05     # the largest deflection / link length the small-deflection model is taken to cover
+
+
+def deflection_ratio(robot: Robot, acceleration) -> float:
+    """An order-of-magnitude estimate of the links' deflection relative to their length under an
+    acceleration load ``acceleration`` [m/s^2] on the payload and on the links' own mass: each link
+    a cantilever of its length and the robot's section, with the whole payload at its tip
+    (P L^3 / 3 E I) and its own mass spread along it (w L^4 / 8 E I); the larger ratio of the two
+    links (the largest over a batch of robots). Eager: numpy values."""
+    ei = np.asarray(robot.young, dtype=float) * np.pi * np.asarray(robot.diameter, dtype=float) ** 4 / 64.0
+    line = np.asarray(robot.rho, dtype=float) * np.pi * np.asarray(robot.diameter, dtype=float) ** 2 / 4.0
+    ratios = [float(np.max(acceleration * (np.asarray(robot.payload, dtype=float) * length**2 / (3.0 * ei)
+                                           + line * length**3 / (8.0 * ei))))
+              for length in (np.asarray(robot.l1, dtype=float), np.asarray(robot.l2, dtype=float))]
+    return max(ratios)
+
+
+def check_motion_loads(robot: Robot, cycle: Cycle, tf: float) -> None:
+    """ValueError, before anything compiles, when a rest-to-rest motion from the pick to the place in
+    tf [s] must load the links beyond the model's small deflections: every such motion reaches a
+    peak acceleration of at least 4 |place - pick| / tf^2, and ``deflection_ratio`` under it must stay
+    below ``SMALL_DEFLECTION`` (docs/conventions.md#model-range)."""
+    tf = float(tf)
+    distance = float(np.linalg.norm(np.asarray(cycle.place, dtype=float) - np.asarray(cycle.pick, dtype=float)))
+    with np.errstate(over="ignore", divide="ignore", invalid="ignore"):
+        least = np.float64(4.0 * distance) / np.float64(tf) / np.float64(tf) if tf > 0 else np.inf
+        ratio = deflection_ratio(robot, least) if np.isfinite(least) else np.inf
+    if not ratio <= SMALL_DEFLECTION:
+        raise ValueError(f"motion time tf {tf:g} s is too short for this robot: any move from the pick to the "
+                         f"place in it accelerates at {least:.3g} m/s^2 or more, which bends the links by about "
+                         f"{100 * ratio:.3g} % of their length (a cantilever estimate), beyond the small deflections "
+                         f"the model covers ({100 * SMALL_DEFLECTION:g} %); see docs/conventions.md#model-range")
+
+
 def check_robot(robot: Robot) -> None:
-    """Eager validation: finite, positive physical parameters (skipped for traced values)."""
+    """Eager validation: finite, positive physical parameters, and a static sag under gravity within
+    the model's small deflections (``deflection_ratio``; docs/conventions.md#model-range). Skipped
+    for traced values."""
     positive = ("l1", "l2", "diameter", "rho", "young", "a")
     nonneg = ("payload", "rotor_inertia")
     for name in positive + nonneg + ("gravity", "damping"):
@@ -171,6 +207,15 @@ def check_robot(robot: Robot) -> None:
             raise ValueError(f"robot parameter {name} must be > 0, got {v}")
         if name in nonneg + ("damping",) and np.any(v < 0):
             raise ValueError(f"robot parameter {name} must be >= 0, got {v}")
+    fields = (robot.l1, robot.l2, robot.diameter, robot.rho, robot.young, robot.payload, robot.gravity)
+    if not any(isinstance(v, jax.core.Tracer) for v in fields):
+        g = np.linalg.norm(np.asarray(robot.gravity, dtype=float), axis=-1)
+        ratio = deflection_ratio(robot, np.max(g))
+        if ratio > SMALL_DEFLECTION:
+            raise ValueError(f"payload {float(np.max(np.asarray(robot.payload))):g} kg: the links' static sag under "
+                             f"gravity is about {100 * ratio:.3g} % of their length (a cantilever estimate), beyond "
+                             f"the small deflections the model covers ({100 * SMALL_DEFLECTION:g} %); take a lighter "
+                             "payload or stiffer links (docs/conventions.md#model-range)")
 
 
 # ----------------------------------------------------------------------------------------------

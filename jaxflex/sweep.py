@@ -27,7 +27,7 @@ from jaxflex.metrics import METRICS
 from jaxflex.path import check_path_args, make_path
 from jaxflex.profiles import PROFILES, make_profile
 from jaxflex.progress import stage
-from jaxflex.robot import Robot, check_cycle_reachable
+from jaxflex.robot import Robot, check_cycle_reachable, check_motion_loads
 from jaxflex.engine import sample_motion
 from jaxflex.servo import Servo, check_stable, with_rotor
 from jaxflex.servo_simulate import servo_grid
@@ -309,6 +309,8 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES,
     c = config.checked(cycle)
     blends, profiles, dwell, repeats, timed, progress = c.blends, c.profiles, c.dwell, c.repeats, c.timed, c.progress
     check_cycle_reachable(robot, cycle)
+    for case in cases:
+        check_motion_loads(robot.replace(payload=case.payload), cycle, case.tf)
     if c.servo is not None:
         robot = with_rotor(robot, c.servo)
     grid = c.grid or default_grid(robot, [case.tf for case in cases], dwell, c.dt)

@@ -44,7 +44,7 @@ from jaxflex.model_sets import ModelSet
 from jaxflex.problem import Problem
 from jaxflex.profiles import make_profile, shaped
 from jaxflex.progress import Progress
-from jaxflex.robot import check_cycle_reachable
+from jaxflex.robot import check_cycle_reachable, check_motion_loads
 from jaxflex.runtime.threads import Beside
 from jaxflex.simulate import Grid
 from jaxflex.sweep import SweepConfig
@@ -149,6 +149,8 @@ def checked_study(name: str, problem: Problem, config: StudyConfig) -> tuple[Pro
     timing = problem.timing.checked()
     config = config.checked()
     check_cycle_reachable(problem.robot, problem.cycle)
+    for m in payloads:
+        check_motion_loads(problem.robot.replace(payload=m), problem.cycle, timing.tf)
     return problem._replace(payloads=payloads, timing=timing), config
 
 

@@ -257,3 +257,31 @@ def test_bad_full_model_arguments(kwargs, match):
         reference.reference_rollout(ROBOT, make_path(CYCLE, "lame", 0.025), make_profile("poly7"),
                                     progress=False, **args)
     assert [p._cache_size() for p in programs] == before
+
+
+def test_the_model_range_refuses_a_sag_or_a_motion_beyond_small_deflections():
+    """The small-deflection bound (docs/conventions.md#model-range): the cantilever estimate for the
+    paper's robot (Table 3: l2 0.38079 m, d 35 mm, E 70 GPa, rho 2710 kg/m^3) with 6 kg under
+    gravity, computed here by hand, is 5.86e-4 of the link; payloads of 500 kg pass and 600 kg are
+    refused (the bound, 5 %, at about 544 kg); at 6 kg a 45 ms move passes and a 38 ms one is
+    refused (about 41 ms); a sweep and an optimization study with such a case fail before any
+    program compiles (1e9 kg, the 1e-300 s of a typo, included)."""
+    from jaxflex.robot import check_motion_loads, deflection_ratio
+    from jaxflex.sweep import Case, SweepConfig, run_sweep
+
+    ei = 70e9 * np.pi * 0.035**4 / 64
+    w = 2710.0 * np.pi * 0.035**2 / 4
+    by_hand = 9.81 * (6.0 * 0.38079**2 / (3 * ei) + w * 0.38079**3 / (8 * ei))
+    assert deflection_ratio(ROBOT.replace(payload=6.0), 9.81) == pytest.approx(by_hand, rel=1e-12)
+    assert by_hand == pytest.approx(5.86e-4, rel=0.01)
+    ROBOT.replace(payload=500.0)
+    for payload in (600.0, 1e9):
+        with pytest.raises(ValueError, match=r"payload .* kg: the links' static sag .* beyond the small deflections"):
+            ROBOT.replace(payload=payload)
+    six = ROBOT.replace(payload=6.0)
+    check_motion_loads(six, CYCLE, 0.045)
+    for tf in (0.038, 1e-300):
+        with pytest.raises(ValueError, match=r"motion time tf .* s is too short for this robot"):
+            check_motion_loads(six, CYCLE, tf)
+    _no_compile(lambda: run_sweep(ROBOT, CYCLE, [Case(6.0, 0.02)], SweepConfig(timed=False)), "too short")
+    _no_compile(lambda: run_sweep(ROBOT, CYCLE, [Case(1e9, 0.43)], SweepConfig(timed=False)), "static sag")
