@@ -245,6 +245,10 @@ def main(argv=None) -> int:
     from jaxflex.runtime import heap
 
     heap.start_trimming()
+    if "MPLBACKEND" not in os.environ:          # the commands only write figure files: no window
+        import matplotlib
+
+        matplotlib.use("Agg")
     jax.config.update("jax_enable_x64", True)
     _enable_compilation_cache(jax)
     args = build_parser().parse_args(argv)

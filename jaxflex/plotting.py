@@ -1,17 +1,12 @@
-"""Matplotlib figures of trajectories, spectra and simulation results (headless-safe).
+"""Matplotlib figures of trajectories, spectra and simulation results.
 
 Every function takes plain arrays (numpy or JAX) and returns a ``matplotlib.figure.Figure``; saving
-is the caller's business (``fig.savefig``).
+is the caller's business (``fig.savefig``). Importing this module leaves matplotlib's backend as
+the user set it (inline, svg, ipympl, a window); the ``jaxflex`` command line, which only writes
+files, selects Agg itself unless ``MPLBACKEND`` is set.
 """
 from __future__ import annotations
 
-import matplotlib
-
-if matplotlib.get_backend().lower() not in ("agg", "module://matplotlib_inline.backend_inline"):
-    try:
-        matplotlib.use("Agg")
-    except Exception:  # pragma: no cover - backend already fixed by the user
-        pass
 import matplotlib.pyplot as plt
 import numpy as np
 

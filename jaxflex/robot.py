@@ -194,6 +194,10 @@ def check_robot(robot: Robot) -> None:
     """Eager validation: finite, positive physical parameters, and a static sag under gravity within
     the model's small deflections (``deflection_ratio``; docs/conventions.md#model-range). Skipped
     for traced values."""
+    if not jax.config.jax_enable_x64:
+        raise RuntimeError("jaxflex computes in float64, but JAX is in float32 mode: call "
+                           "jax.config.update(\"jax_enable_x64\", True) before anything else (before any array "
+                           "is created), or set JAX_ENABLE_X64=1 (docs/conventions.md#units-and-precision)")
     positive = ("l1", "l2", "diameter", "rho", "young", "a")
     nonneg = ("payload", "rotor_inertia")
     for name in positive + nonneg + ("gravity", "damping"):

@@ -25,6 +25,9 @@ if "XLA_FLAGS" not in os.environ:
 # the threads run the same programs on the same inputs). Set JAXFLEX_THREADS yourself to override.
 os.environ.setdefault("JAXFLEX_THREADS", "1")
 
+# Figures are drawn into files, headless (the library leaves the backend to its user).
+os.environ.setdefault("MPLBACKEND", "Agg")
+
 # The xdist workers start after this file is read, so they inherit the environment the ``jaxflex``
 # console script runs in: glibc's malloc on transparent huge pages (less kernel time in XLA's buffer
 # allocations, see docs/performance.md; ``jaxflex.experiments.cli.hugepages_env``).

@@ -41,3 +41,24 @@ def test_the_gradient_strategy_is_a_value_with_one_build_setting():
             jf.Staged(build=bad)
     with pytest.raises(ValueError, match="mode"):
         jf.OneProgram(mode="sideways")
+
+
+def test_float32_mode_is_refused_with_what_to_do():
+    """Without float64 (JAX's default), building a robot, which every computation starts with, stops
+    with an error naming the switch, instead of computing the physics in float32."""
+    code = "import jaxflex as jf; jf.robot_preset()"
+    env = {k: v for k, v in __import__("os").environ.items() if k != "JAX_ENABLE_X64"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120, env=env)
+    assert out.returncode != 0 and "jax_enable_x64" in out.stderr and "float32" in out.stderr, out.stderr
+    ok = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                        env={**env, "JAX_ENABLE_X64": "1"})
+    assert ok.returncode == 0, ok.stderr
+
+
+def test_importing_the_plotting_module_keeps_the_users_matplotlib_backend():
+    """``jaxflex.plotting`` draws into whatever backend the user chose (svg here): importing it
+    must not switch to Agg, which would break inline, svg, ipympl and widget users."""
+    code = ("import matplotlib; matplotlib.use('svg'); import jaxflex.plotting; "
+            "print(matplotlib.get_backend())")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.strip() == "svg", (out.stdout, out.stderr)
