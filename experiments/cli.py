@@ -54,6 +54,9 @@ def build_parser() -> argparse.ArgumentParser:
         prog="jaxflex",
         description="Differentiable elastodynamics and vibration-aware trajectory design for a "
                     "flexible five-bar pick-and-place robot (float64, JAX).")
+    from jaxflex import __version__
+
+    parser.add_argument("--version", action="version", version=f"jaxflex {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     p = sub.add_parser("kinematics", help="Tables 2, 5, 6 and Figs. 6-8, 10, 11 (paper Section 3)",
