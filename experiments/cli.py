@@ -23,6 +23,39 @@ def _add_common(p, preset=True):
     p.add_argument("--json", metavar="PATH", help="also write the results as JSON to PATH")
 
 
+def _add_setup(p):
+    """Your own robot and move (docs/conventions.md#file-formats): files, or the pick and place points."""
+    g = p.add_argument_group("robot and move", "instead of the preset's: a robot file (TOML, e.g. "
+                                               "examples/paper_robot.toml) and a cycle file or the pick and place "
+                                               "points; docs/conventions.md#file-formats")
+    g.add_argument("--robot", metavar="FILE.toml", help="the robot (links, motors, payload, rotor, damping, servo)")
+    g.add_argument("--cycle", metavar="FILE.toml", help="the Adept cycle (pick, place, lift height and direction)")
+    g.add_argument("--pick", type=float, nargs=2, metavar=("X", "Y"), help="pick point [m]")
+    g.add_argument("--place", type=float, nargs=2, metavar=("X", "Y"), help="place point [m]")
+    g.add_argument("--lift", type=float, metavar="H", help="lift height of the cycle [m] (default: 0.025)")
+
+
+def run_setup(args):
+    """The robot and cycle the flags describe (``jaxflex.robot_files.setup``): the preset's name when
+    no file or point is given (the experiments then build the preset), else a ``Setup``."""
+    if not any(getattr(args, k, None) is not None for k in ("robot", "cycle", "pick", "place", "lift")):
+        return args.preset
+    from jaxflex.robot_files import setup
+
+    return setup(args.preset, args.robot, args.cycle, args.pick, args.place, args.lift)
+
+
+def file_payloads(args, setup, many: bool):
+    """--payload if given, else the robot file's payload (when > 0), else 6 kg."""
+    if args.payload is not None:
+        return args.payload
+    value = 6.0
+    if not isinstance(setup, str) and getattr(args, "robot", None) is not None:
+        m = float(setup.robot.payload)
+        value = m if m > 0 else value
+    return [value] if many else value
+
+
 def _add_servo(p, feedforward="rigid"):
     """The servo loop's flags (docs/conventions.md#servo)."""
     g = p.add_argument_group("servo loop", "drive the motors with a sampled PD servo instead of prescribing them "
@@ -30,22 +63,34 @@ def _add_servo(p, feedforward="rigid"):
     g.add_argument("--servo", type=float, metavar="FC",
                    help="closed-loop bandwidth fc [Hz] of the default gain rule (Kp = J (2 pi fc)^2, "
                         "Kd = 1.4 J (2 pi fc)); omitted: perfect controller")
-    g.add_argument("--servo-rate", type=float, default=8000.0, metavar="HZ",
-                   help="servo sample rate [Hz] (default: %(default)s)")
-    g.add_argument("--rotor-inertia", type=float, default=0.01, metavar="J",
-                   help="rotor inertia of each motor [kg m^2] (default: %(default)s)")
-    g.add_argument("--feedforward", default=feedforward, choices=("none", "rigid", "flexible"),
+    g.add_argument("--servo-rate", type=float, metavar="HZ",
+                   help="servo sample rate [Hz] (default: the robot file's, else 8000)")
+    g.add_argument("--rotor-inertia", type=float, metavar="J",
+                   help="rotor inertia of each motor [kg m^2] (default: the robot file's if > 0, else 0.01)")
+    g.add_argument("--feedforward", choices=("none", "rigid", "flexible"),
                    help="feedforward torque: none, rigid inverse dynamics, or the flexible model's "
-                        "(default: %(default)s)")
+                        f"(default: the robot file's, else {feedforward})")
+    g.set_defaults(feedforward_default=feedforward)
     return g
 
 
-def servo_options(args) -> dict | None:
-    """The servo flags as keyword arguments (fc, rate, rotor_inertia, feedforward); None without --servo."""
-    if getattr(args, "servo", None) is None:
+def servo_options(args, setup=None) -> dict | None:
+    """The servo flags as keyword arguments of ``servo.cycle_servo`` (fc, rate, rotor_inertia,
+    feedforward, and the robot file's other settings); a flag given wins over the robot file's
+    ``[servo]`` table (``setup``: ``run_setup``'s), which wins over the defaults. None when neither
+    --servo nor the file sets fc."""
+    file = {} if setup is None or isinstance(setup, str) or setup.servo is None else dict(setup.servo)
+    fc = args.servo if getattr(args, "servo", None) is not None else file.pop("fc", None)
+    file.pop("fc", None)
+    if fc is None:
         return None
-    return {"fc": args.servo, "rate": args.servo_rate, "rotor_inertia": args.rotor_inertia,
-            "feedforward": args.feedforward}
+    rotor = args.rotor_inertia
+    if rotor is None:
+        m = 0.0 if setup is None or isinstance(setup, str) else float(setup.robot.rotor_inertia)
+        rotor = m if m > 0 else 0.01
+    return {**file, "fc": fc, "rate": args.servo_rate if args.servo_rate is not None else file.pop("rate", 8000.0),
+            "rotor_inertia": rotor,
+            "feedforward": args.feedforward or file.pop("feedforward", None) or args.feedforward_default}
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -74,10 +119,11 @@ def build_parser() -> argparse.ArgumentParser:
                                    "the motors locked, linearized about the static equilibrium under "
                                    "gravity (paper Section 4).")
     _add_common(p)
-    p.add_argument("--payload", type=float, default=6.0, help="payload mass [kg] (default: %(default)s)")
+    p.add_argument("--payload", type=float, help="payload mass [kg] (default: the robot file's, else 6)")
     p.add_argument("--points", type=int, default=21,
                    help="points equally spaced in arc length (default: %(default)s)")
     p.add_argument("--out", metavar="DIR", help="write a PNG of the first three frequencies to DIR")
+    _add_setup(p)
 
     p = sub.add_parser("sweep", help="simulate the 12 path-profile combinations (paper Section 4)",
                        description="Inverse elastodynamic simulation (perfect controller) of the 12 "
@@ -85,7 +131,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "then a dwell at the place pose; every metric of docs/conventions.md#metrics "
                                    "per run.")
     _add_common(p)
-    p.add_argument("--payload", type=float, default=6.0, help="payload mass [kg] (default: %(default)s)")
+    p.add_argument("--payload", type=float, help="payload mass [kg] (default: the robot file's, else 6)")
     p.add_argument("--tf", type=float, default=0.43, help="motion time [s] (default: %(default)s)")
     p.add_argument("--dt", type=float, default=None,
                    help="integration step [s] (default: 1e-4, converged; see REPORT.md)")
@@ -95,6 +141,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="sweeps timed after the first, compiling, one; the run time printed is their median "
                         "(default: %(default)s; 0: the results only, no timing)")
     _add_servo(p)
+    _add_setup(p)
 
     p = sub.add_parser("optimize", help="optimize the trajectory against the paper and industrial baselines",
                        description="Gradient-based optimization (reverse mode through the table build and "
@@ -108,8 +155,9 @@ def build_parser() -> argparse.ArgumentParser:
                                    "perturbed (E +-5 %%, payload +-10 %%) and damped models and on random "
                                    "models of the box.")
     _add_common(p)
-    p.add_argument("--payload", type=float, nargs="+", default=[6.0],
-                   help="payload mass(es) [kg]; several give one design robust over them (default: 6)")
+    p.add_argument("--payload", type=float, nargs="+",
+                   help="payload mass(es) [kg]; several give one design robust over them (default: the robot "
+                        "file's, else 6)")
     p.add_argument("--tf", type=float, default=0.43, help="motion time [s] (default: %(default)s)")
     p.add_argument("--steps", type=int, default=STUDY.train.optimizer.steps,
                    help="optimizer steps (default: %(default)s)")
@@ -162,6 +210,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "checkpoint to DIR; rerunning with the same DIR resumes")
     p.add_argument("--export-rate", type=float, default=10_000.0, metavar="HZ",
                    help="sample rate of trajectory.csv [Hz] (default: %(default)s)")
+    _add_setup(p)
     g = _add_servo(p, feedforward="flexible")
     g.description = ("then judge the designs under a sampled PD servo of bandwidth FC: refine the design with "
                      "the servo in the loop (the feedforward given to the design: --feedforward, default "
@@ -266,27 +315,32 @@ def main(argv=None) -> int:
         elif args.command == "modes":
             from jaxflex.experiments import modes
 
-            modes.run(args.preset, args.payload, args.points, json_path=args.json, out=args.out)
+            setup = run_setup(args)
+            modes.run(setup, file_payloads(args, setup, False), args.points, json_path=args.json, out=args.out)
         elif args.command == "sweep":
             from jaxflex.experiments import sweep
 
-            sweep.run(args.preset, args.payload, args.tf, args.dt, args.dwell, json_path=args.json,
-                      servo=servo_options(args), repeats=args.repeats)
+            setup = run_setup(args)
+            sweep.run(setup, file_payloads(args, setup, False), args.tf, args.dt, args.dwell, json_path=args.json,
+                      servo=servo_options(args, setup), repeats=args.repeats)
         elif args.command == "optimize":
             from jaxflex.experiments import optimize
 
+            setup = run_setup(args)
+            payloads = file_payloads(args, setup, True)
             config = study_config(args)
             if args.cycle_time is not None:
                 tfs = tuple(args.cycle_time) or (0.43, 0.40, 0.37, 0.34, 0.31)
-                optimize.run_cycle_time(args.preset, args.payload[0], args.tf, tfs, out=args.out,
+                optimize.run_cycle_time(setup, payloads[0], args.tf, tfs, out=args.out,
                                         json_path=args.json, config=config)
             else:
                 closed = None
-                if args.servo is not None:
-                    closed = {**servo_options(args), "steps": args.servo_steps, "samples": args.servo_samples,
+                options = servo_options(args, setup)
+                if options is not None:
+                    closed = {**options, "steps": args.servo_steps, "samples": args.servo_samples,
                               "fcs": tuple(args.servo_fcs), "corners": args.servo_corners,
                               "scenarios": args.servo_scenarios}
-                optimize.run(args.preset, tuple(args.payload), args.tf, out=args.out, json_path=args.json,
+                optimize.run(setup, tuple(payloads), args.tf, out=args.out, json_path=args.json,
                              verify=args.verify, config=dataclasses.replace(config, free_path=args.free_path),
                              export_rate=args.export_rate, closed_loop=closed)
         elif args.command == "bench":

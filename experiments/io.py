@@ -132,3 +132,31 @@ def initial_design(path, blend: str | None, order: int):
     if law_order != order:
         raise ValueError(f"--init {path}: its law has end-factor order {law_order}, this run {order}")
     return x
+
+
+def robot_and_cycle(preset, **overrides) -> tuple:
+    """(robot, cycle) of a run: ``preset`` is a preset name (``robot_preset``, ``cycle_preset``) or a
+    ``jaxflex.robot_files.Setup`` (the CLI's --robot, --cycle, --pick/--place). ``overrides``
+    replace robot fields (e.g. payload)."""
+    from jaxflex.robot import cycle_preset, robot_preset
+
+    if isinstance(preset, str):
+        return robot_preset(preset, **overrides), cycle_preset(preset)
+    robot = preset.robot.replace(**overrides) if overrides else preset.robot
+    return robot, preset.cycle
+
+
+def setup_name(record) -> str:
+    """The name in a record's "preset" field (``setup_record``)."""
+    return record if isinstance(record, str) else record["name"]
+
+
+def setup_record(preset):
+    """What the records store for the robot and cycle: the preset's name, or the setup's name with
+    its robot and cycle tables (``jaxflex.robot_files``), enough to rebuild them."""
+    if isinstance(preset, str):
+        return preset
+    from jaxflex.robot_files import cycle_to_dict, robot_to_dict
+
+    return {"name": preset.name, "robot": robot_to_dict(preset.robot), "cycle": cycle_to_dict(preset.cycle),
+            "servo": preset.servo}

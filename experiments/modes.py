@@ -12,10 +12,10 @@ import numpy as np
 from jaxflex import checks
 from jaxflex.frequencies import modes_at_point
 from jaxflex.path import make_path, path_frame
-from jaxflex.robot import check_cycle_reachable, cycle_preset, robot_preset
+from jaxflex.robot import check_cycle_reachable
 
 from . import paper_data
-from .io import fmt, provenance, save_figure, table, write_json
+from .io import fmt, provenance, robot_and_cycle, save_figure, setup_name, setup_record, table, write_json
 
 
 @jax.jit
@@ -37,21 +37,21 @@ def compute(preset: str = "default", payload: float = 6.0, points: int = 21, ble
     points = checks.count("points", points, 2)
     payload = checks.nonnegative("payload", payload, "kg")
     started = time.time()
-    robot, cycle = robot_preset(preset, payload=payload), cycle_preset(preset)
+    robot, cycle = robot_and_cycle(preset, payload=payload)
     check_cycle_reachable(robot, cycle)
     path = make_path(cycle, blend, d)
     s = jnp.linspace(0.0, path.length, int(points))
     x, freqs = _along(robot, path, s)
     x, freqs, s = np.asarray(x), np.asarray(freqs), np.asarray(s)
     if not np.all(np.isfinite(freqs)):
-        raise ValueError(f"non-finite natural frequencies (payload {payload} kg, preset {preset})")
+        raise ValueError(f"non-finite natural frequencies (payload {payload} kg, {setup_name(setup_record(preset))})")
     pts = [{"s": float(si), "x": float(xi[0]), "y": float(xi[1]), "freqs_hz": [float(f) for f in fr]}
            for si, xi, fr in zip(s, x, freqs)]
     summary = {f"mode_{k + 1}": {"min": float(freqs[:, k].min()), "max": float(freqs[:, k].max()),
                                  "mean": float(freqs[:, k].mean())} for k in range(3)}
-    return {"payload": float(payload), "preset": preset, "blend": blend, "points": pts,
+    return {"payload": float(payload), "preset": setup_record(preset), "blend": blend, "points": pts,
             "summary": summary, "paper": paper_data.FREQUENCIES_HZ.get(float(payload)),
-            "provenance": provenance({"preset": preset, "payload": payload, "points": points,
+            "provenance": provenance({"preset": setup_record(preset), "payload": payload, "points": points,
                                       "blend": blend, "d": d}, started)}
 
 
@@ -60,7 +60,7 @@ def text(res: dict) -> str:
     rows = [[f"{p['s'] * 1e3:.2f}", f"{p['x'] * 1e3:.2f}", f"{p['y'] * 1e3:.2f}"]
             + [fmt(f, 5) for f in p["freqs_hz"][:4]] for p in res["points"]]
     out = [f"Locked-motor natural frequencies along the {res['blend']} path, payload {res['payload']:g} kg, "
-           f"preset `{res['preset']}`", "",
+           f"`{setup_name(res['preset'])}`", "",
            table(["s [mm]", "x [mm]", "y [mm]", "f1 [Hz]", "f2 [Hz]", "f3 [Hz]", "f4 [Hz]"], rows), ""]
     paper = res.get("paper") or {}
     rows = []

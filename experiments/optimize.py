@@ -26,11 +26,11 @@ from jaxflex.path import path_frame
 from jaxflex.problem import Problem, Timing
 from jaxflex.profiles import profile_eval, profile_values
 from jaxflex.progress import stage
-from jaxflex.robot import cycle_preset, igm, robot_preset
+from jaxflex.robot import igm
 from jaxflex.trajectory import task_from_arc
 from jaxflex.uncertainty import ModelId
 
-from .io import fmt, provenance, save_figure, table, write_json
+from .io import fmt, provenance, robot_and_cycle, save_figure, setup_record, table, write_json
 
 
 
@@ -356,10 +356,16 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, out=None, verify=False, 
     servo."""
     started = time.time()
     if closed_loop is not None:          # before the perfect controller's study: a bad count fails now
+        extra = sorted(set(closed_loop) - {"fc", "rate", "rotor_inertia", "feedforward", "steps", "samples", "fcs",
+                                           "corners", "scenarios"})
+        if extra:
+            raise ValueError(f"the closed-loop study sets up its controller by the default gain rule from fc, the "
+                             f"rate, the rotor inertia and the feedforward kind; it does not take {', '.join(extra)} "
+                             "(from the robot file's [servo] table): remove them, or use jaxflex sweep")
         for name in ("steps", "samples", "scenarios"):
             if name in closed_loop:
                 checks.count(f"servo {name}", closed_loop[name], minimum=0)
-    robot, cycle = robot_preset(preset), cycle_preset(preset)
+    robot, cycle = robot_and_cycle(preset)
     ckpt = None
     if out:
         Path(out).mkdir(parents=True, exist_ok=True)
@@ -377,7 +383,7 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, out=None, verify=False, 
            "stopped": study.result.stopped, "optimize_s": study.result.wall_s,
            "step_times_s": list(study.result.times), "milestones": milestones(study),
            "grid": study.grid._asdict(),
-           "provenance": provenance({"preset": preset, "payloads": list(payloads), "tf": tf,
+           "provenance": provenance({"preset": setup_record(preset), "payloads": list(payloads), "tf": tf,
                                      **config.record()}, started)}
     bar.update(note="record")
     export_path, export_law, export_servo = study.paths["optimized"], study.candidates["optimized"].law, None
@@ -433,7 +439,7 @@ def verification(rec: dict, preset: str = "default") -> dict:
     """The study's independent check (``jaxflex.optimize.verification.verify``) of a study record: the best
     paper combination and the optimized trajectory re-simulated at a quarter step and with the full
     nonlinear model, per payload: "<payload> kg" -> trajectory -> method -> dwell residual [mm]."""
-    robot, cycle = robot_preset(preset), cycle_preset(preset)
+    robot, cycle = robot_and_cycle(preset)
     trajectories = trajectories_of(rec, cycle)
     return {f"{m:g} kg": verify_trajectories(Problem(robot, cycle, (m,), Timing(rec["tf"])), trajectories)
             for m in rec["payloads"]}
@@ -525,10 +531,10 @@ def run_cycle_time(preset="default", payload=6.0, tf_ref=0.43, tfs=(0.43, 0.40, 
     from jaxflex.optimize.cycle_time import cycle_time_study
 
     started = time.time()
-    robot, cycle = robot_preset(preset), cycle_preset(preset)
+    robot, cycle = robot_and_cycle(preset)
     st = cycle_time_study(Problem(robot, cycle, (payload,), Timing(tf_ref)), tfs, config)
     rec = cycle_time_record(st)
-    rec["provenance"] = provenance({"preset": preset, "payload": payload, "tf_ref": tf_ref, "tfs": list(tfs),
+    rec["provenance"] = provenance({"preset": setup_record(preset), "payload": payload, "tf_ref": tf_ref, "tfs": list(tfs),
                                     **config.record()}, started)
     print(cycle_time_text(rec))
     if out:

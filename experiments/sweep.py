@@ -8,11 +8,10 @@ import warnings
 
 from jaxflex import checks
 from jaxflex.metrics import METRICS, UNITS
-from jaxflex.robot import cycle_preset, robot_preset
 from jaxflex.servo import cycle_servo, record
 from jaxflex.sweep import Case, StepWarning, SweepConfig, accuracy_record, results_table, run_sweep
 
-from .io import fmt, provenance, table, write_json
+from .io import fmt, provenance, robot_and_cycle, setup_name, setup_record, table, write_json
 
 SHORT = {"max_torque_nm": "torque", "rms_acc_error": "rms e''", "max_deflection_mm": "max |e|",
          "residual_pos_mm": "|e(tf)|", "residual_vel": "|e'(tf)|", "residual_acc": "|e''(tf)|",
@@ -27,7 +26,7 @@ def compute(preset: str = "default", payload: float = 6.0, tf: float = 0.43, dt:
     perfect controller. ``repeats``: sweeps timed after the first (0: none; the record's run time is then null)."""
     started = time.time()
     repeats = checks.count("repeats", repeats, minimum=0)
-    robot, cycle = robot_preset(preset), cycle_preset(preset)
+    robot, cycle = robot_and_cycle(preset)
     controller = None
     if servo is not None:
         options = dict(servo)
@@ -45,13 +44,13 @@ def compute(preset: str = "default", payload: float = 6.0, tf: float = 0.43, dt:
                         SweepConfig(dwell=dwell, dt=dt, repeats=max(repeats, 1), timed=repeats > 0,
                                     progress=True, servo=controller))
     grid = res.grid
-    return {"payload": payload, "tf": tf, "dt": tf / grid.steps, "dwell": dwell, "preset": preset,
+    return {"payload": payload, "tf": tf, "dt": tf / grid.steps, "dwell": dwell, "preset": setup_record(preset),
             "servo": None if controller is None else record(controller),
             "results": results_table(res, 0),
             "timing": {"compile_s": res.compile_s,
                        "run_s": res.run_s if math.isfinite(res.run_s) else None},   # None: not timed
             "grid": grid._asdict(), "accuracy": accuracy_record(res.accuracy), "warnings": said, "provenance": provenance(
-                {"preset": preset, "payload": payload, "tf": tf, "dt": dt, "dwell": dwell, "servo": servo,
+                {"preset": setup_record(preset), "payload": payload, "tf": tf, "dt": dt, "dwell": dwell, "servo": servo,
                  "repeats": repeats}, started)}
 
 
@@ -76,7 +75,7 @@ def text(rec: dict) -> str:
         f"{acc['max_estimate_over_tolerance']:.2g} x its tolerance" + (
             f"; the grid refined {acc['refinements']} time(s) to meet it" if acc["refinements"] else "") + ")")
     return (f"Sweep: payload {rec['payload']:g} kg, tf {rec['tf']:g} s, dt {rec['dt']:.3g} s, dwell "
-            f"{rec['dwell']:g} s ({rec['preset']} preset), {control}\n\n" + table(head, rows) + accuracy
+            f"{rec['dwell']:g} s ({setup_name(rec['preset'])}), {control}\n\n" + table(head, rows) + accuracy
             + (f"\n\ncompile {t['compile_s']:.1f} s, run {t['run_s'] * 1e3:.0f} ms (median)"
                if t["run_s"] is not None else f"\n\ncompile and first run {t['compile_s']:.1f} s (not timed)"))
 

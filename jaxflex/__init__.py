@@ -3,6 +3,8 @@
 Everything a researcher uses is reachable from here (``import jaxflex as jf``), grouped as
 
 - the robot, its cycle and paths: ``robot_preset``, ``make_robot``, ``cycle_preset``, ``make_cycle``,
+  from and to TOML files or dicts ``load_robot``, ``load_cycle``, ``robot_toml``, ``cycle_toml``,
+  ``robot_from_dict``, ``robot_to_dict``, ``cycle_from_dict``, ``cycle_to_dict``,
   ``make_path``, ``make_profile``, ``shaped``, ``time_grid``, ``sample_combinations`` and the module
   ``trajectory`` (``jf.trajectory.trajectory``: one trajectory's task and joint samples);
 - the problem: ``Problem``, ``Timing``, ``Grid``, ``default_grid``;
@@ -34,7 +36,10 @@ _PUBLIC = {
     "make_profile": "jaxflex.profiles", "shaped": "jaxflex.profiles", "zv": "jaxflex.profiles",
     "zvd": "jaxflex.profiles", "profile_eval": "jaxflex.profiles", "profile_values": "jaxflex.profiles",
     "trajectory": "jaxflex.trajectory", "time_grid": "jaxflex.trajectory",
-    "sample_combinations": "jaxflex.combinations", "PRESETS": "jaxflex.names", "BLENDS": "jaxflex.names",
+    "sample_combinations": "jaxflex.combinations", "load_robot": "jaxflex.robot_files",
+    "load_cycle": "jaxflex.robot_files", "robot_from_dict": "jaxflex.robot_files",
+    "robot_to_dict": "jaxflex.robot_files", "cycle_from_dict": "jaxflex.robot_files",
+    "cycle_to_dict": "jaxflex.robot_files", "robot_toml": "jaxflex.robot_files", "cycle_toml": "jaxflex.robot_files", "PRESETS": "jaxflex.names", "BLENDS": "jaxflex.names",
     "DESIGN_BLENDS": "jaxflex.names", "PROFILES": "jaxflex.names",
     # the problem and its discretization
     "Problem": "jaxflex.problem", "Timing": "jaxflex.problem", "Grid": "jaxflex.simulate",
