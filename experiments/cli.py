@@ -269,6 +269,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true",
                    help="coarser grids and fewer points, no convergence or full-model checks: a fast "
                         "smoke run (not for publication)")
+    p.add_argument("--fresh", action="store_true",
+                   help="compute every section again instead of resuming; without it a rerun into the same DIR "
+                        "reuses the sections computed by the same code (a digest of its sources) in the same mode")
     return parser
 
 
@@ -351,7 +354,7 @@ def main(argv=None) -> int:
             from jaxflex.experiments import reproduce
 
             reproduce.run(args.out, quick=args.quick, vibration=args.vibration, optimize=args.optimize,
-                          closed_loop=args.closed_loop)
+                          closed_loop=args.closed_loop, fresh=args.fresh)
     except ValueError as err:
         print(f"jaxflex {args.command}: error: {_one_line(err)}", file=sys.stderr)
         return 2

@@ -160,3 +160,53 @@ def setup_record(preset):
 
     return {"name": preset.name, "robot": robot_to_dict(preset.robot), "cycle": cycle_to_dict(preset.cycle),
             "servo": preset.servo}
+
+
+def code_digest() -> str:
+    """A digest (16 hex digits) of the installed jaxflex sources (``jaxflex``, ``jaxflex.optimize``,
+    ``jaxflex.experiments``: every ``.py`` file's path and bytes): results computed by other code
+    carry another digest, so a resumable run does not take them for its own."""
+    import hashlib
+    import importlib
+
+    h = hashlib.sha256()
+    for name in ("jaxflex", "jaxflex.optimize", "jaxflex.experiments"):
+        root = Path(importlib.import_module(name).__file__).parent
+        for f in sorted(root.rglob("*.py")):
+            if f.parent.name == "__pycache__":
+                continue
+            h.update(f"{name}/{f.relative_to(root).as_posix()}\n".encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def prepare_resume(out, key: dict, fresh: bool = False) -> int:
+    """Make the resumable outputs in ``out`` safe to resume from under ``key`` (``resumable``'s key
+    of every section). The sections' JSON carry their key and are recomputed when it differs; the
+    optimizers' checkpoints (``checkpoint.npz``) carry none, so ``out/resume.json`` records the key
+    of the run that wrote them, and when it differs (or is missing while checkpoints are there) the
+    checkpoints are removed. ``fresh``: every section's JSON and every checkpoint is removed, so
+    that everything is computed again. Returns the number of files removed."""
+    out = Path(out)
+    marker = out / "resume.json"
+    try:
+        old = json.loads(marker.read_text()) if marker.exists() else None
+    except json.JSONDecodeError:
+        old = None
+    removed = 0
+    checkpoints = sorted(out.rglob("checkpoint.npz"))
+    if fresh or old != key and (old is not None or checkpoints):
+        for f in checkpoints:
+            f.unlink()
+            removed += 1
+    if fresh:
+        for f in sorted(out.rglob("*.json")):
+            try:
+                data = json.loads(f.read_text())
+            except (json.JSONDecodeError, UnicodeDecodeError, OSError):
+                continue
+            if isinstance(data, dict) and "resume_key" in data:
+                f.unlink()
+                removed += 1
+    write_json(marker, key)
+    return removed

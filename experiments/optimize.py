@@ -30,7 +30,7 @@ from jaxflex.robot import igm
 from jaxflex.trajectory import task_from_arc
 from jaxflex.uncertainty import ModelId
 
-from .io import fmt, provenance, robot_and_cycle, save_figure, setup_record, table, write_json
+from .io import fmt, provenance, robot_and_cycle, save_figure, setup_record, table, write_json, write_text
 
 
 
@@ -456,12 +456,37 @@ def run(preset="default", payloads=(6.0,), tf=0.43, out=None, json_path=None, ve
     """``jaxflex optimize``: ``compute`` with the CLI's arguments (payloads [kg], tf [s], the study's
     configuration, the export's rate [Hz], the closed-loop options), print the text and write the JSON."""
     rec = compute(preset, payloads, tf, out, verify, config=config, export_rate=export_rate, closed_loop=closed_loop)
-    print(text(rec))
-    if "closed_loop" in rec:
-        print("\n" + closed_loop_text(rec["closed_loop"]))
+    body = text(rec) + ("\n\n" + closed_loop_text(rec["closed_loop"]) if "closed_loop" in rec else "")
+    print(body)
     if json_path:
         write_json(json_path, rec)
+    if out:
+        write_text(Path(out) / "REPORT.md", report_text(rec, body, Path(out)))
     return rec
+
+
+def report_text(rec: dict, body: str, out: Path) -> str:
+    """``DIR/REPORT.md`` of ``jaxflex optimize --out DIR``: the robot and the move, the comparison
+    printed on the terminal, and the figures and files written beside it."""
+    setup = rec["provenance"]["parameters"]["preset"] if "provenance" in rec else "default"
+    lines = ["# Trajectory optimization", ""]
+    if isinstance(setup, dict):
+        r, c = setup["robot"], setup["cycle"]
+        lines += [f"Robot `{setup['name']}`: links l1 {r['l1']:g} m, l2 {r['l2']:g} m, section {r['diameter']:g} m, "
+                  f"E {r['young']:.4g} Pa, rho {r['rho']:g} kg/m^3, motors at +-{r['a']:g} m, rotor "
+                  f"{r['rotor_inertia']:g} kg m^2. Move: pick ({c['pick'][0]:g}, {c['pick'][1]:g}) m to place "
+                  f"({c['place'][0]:g}, {c['place'][1]:g}) m, lift {c['h']:g} m.", ""]
+    else:
+        lines += [f"Robot and move: the `{setup}` preset (docs/conventions.md#frames-and-geometry).", ""]
+    lines += [body, "", "## Files", ""]
+    figures = [(n, d) for n, d in (("optimized_law.png", "the optimized motion law against the paper's"),
+                                   ("error_series.png", "end-effector error during the motion and the dwell"),
+                                   ("box_residuals.png", "dwell residual over the uncertainty box"))
+               if (out / n).exists()]
+    lines += [f"![{d}]({n})" + "\n" for n, d in figures]
+    lines += ["`trajectory.csv` with `controller.json`: the design as a controller is given it; `optimize.json`: "
+              "every number above (docs/conventions.md#file-formats)."]
+    return "\n".join(lines) + "\n"
 
 
 def cycle_time_record(st) -> dict:

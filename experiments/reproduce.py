@@ -19,17 +19,17 @@ from jaxflex.runtime.compiled import release_compiled, release_if_crowded, run_i
 
 from . import convergence, kinematics, modes, report
 from . import vibration as vibration_study
-from .io import provenance, resumable, save_figure, write_json, write_text
+from .io import code_digest, prepare_resume, provenance, resumable, save_figure, write_json, write_text
 from .report import case_label
 
 
 def run(out: str = "results", quick: bool = False, vibration: bool = True, optimize: bool = True,
-        closed_loop: bool = True) -> dict:
+        closed_loop: bool = True, fresh: bool = False) -> dict:
     """``jaxflex reproduce``: ``compute`` every section into ``out``, then render REPORT.md from the
     results (``experiments.report.render``) and write it with the run's provenance. Returns the
     sections' results."""
     started = time.time()
-    results = compute(out, quick, vibration, optimize, closed_loop)
+    results = compute(out, quick, vibration, optimize, closed_loop, fresh)
     out = Path(out)
     prov = provenance({"out": str(out), "quick": quick}, started)
     write_text(out / "REPORT.md", report.render(results, out, quick, prov, time.time() - started))
@@ -39,7 +39,7 @@ def run(out: str = "results", quick: bool = False, vibration: bool = True, optim
 
 
 def compute(out: str = "results", quick: bool = False, vibration: bool = True, optimize: bool = True,
-            closed_loop: bool = True) -> dict:
+            closed_loop: bool = True, fresh: bool = False) -> dict:
     """Compute every section in order, each writing its JSON/CSV/PNG into ``out``; returns the
     sections' results (``results["kinematics_default"]``, ``"modes"``, ``"vibration"``,
     ``"convergence"``, ``"optimize"``). ``vibration`` (default on) runs the simulation study of the
@@ -48,16 +48,23 @@ def compute(out: str = "results", quick: bool = False, vibration: bool = True, o
     studies (beyond the paper): the optimized designs against the baselines for both paper cases
     (resumable: checkpoints in DIR/optimize_*) and the cycle-time study; with ``closed_loop``
     (default on) the designs are then refined and compared under a servo loop (``_closed_loop``). A section whose JSON is
-    there from a run of the same version and mode is loaded instead of computed."""
+    there from a run of the same code (``io.code_digest``) and mode is loaded instead of computed, and
+    the optimizers resume from their checkpoints only after a run of the same code
+    (``io.prepare_resume``); ``fresh``: every section is computed again."""
     with_vibration = vibration
     if not isinstance(out, (str, Path)) or not str(out):
         raise ValueError(f"out must be a directory path, got {out!r}")
     if Path(out).exists() and not Path(out).is_dir():
         raise ValueError(f"out {str(out)!r} exists and is not a directory")
     from jaxflex import __version__
-    key = {"jaxflex_version": __version__, "quick": quick}     # sections computed with these resume
+    # sections computed by the same code in the same mode resume
+    key = {"jaxflex_version": __version__, "code": code_digest(), "quick": quick}
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
+    removed = prepare_resume(out, key, fresh)
+    if removed:
+        print(f"  {removed} earlier result file(s) and checkpoint(s) removed: "
+              f"{'--fresh' if fresh else 'computed by other code or in another mode'}", flush=True)
     fig_dir = out / "figures"
     steps = 10000 if quick else 20000        # quick: the spectra's sample count (one compiled program)
     results = {}

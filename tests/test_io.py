@@ -21,3 +21,32 @@ def test_resumable_loads_finished_sections_and_recomputes_on_a_new_key(tmp_path)
     fixed = resumable(path, {"v": 2}, compute)
     assert len(calls) == 3 and json.loads(path.read_text())["value"] == 3 == fixed["value"]
     assert [p.name for p in path.parent.iterdir()] == ["section.json"]    # no temporary files left
+
+
+def test_a_rerun_resumes_only_from_the_same_code_and_fresh_starts_over(tmp_path):
+    """``prepare_resume``: checkpoints written under another key (other code, another mode) or under
+    no recorded key are removed, those of the same key kept; ``fresh`` removes them and every
+    section's JSON, and leaves other files alone. ``code_digest`` is stable and changes with the
+    sources' bytes."""
+    import json
+    from jaxflex.experiments import io
+
+    digest = io.code_digest()
+    assert len(digest) == 16 and digest == io.code_digest()
+    key = {"jaxflex_version": "x", "code": digest, "quick": False}
+    (tmp_path / "optimize_6kg").mkdir()
+    ckpt = tmp_path / "optimize_6kg" / "checkpoint.npz"
+    section = tmp_path / "vibration.json"
+    other = tmp_path / "notes.json"
+    write = lambda: (ckpt.write_bytes(b"0"), section.write_text(json.dumps({"a": 1, "resume_key": key})),
+                     other.write_text("{}"))
+    write()
+    assert io.prepare_resume(tmp_path, key) == 1 and not ckpt.exists()     # no key recorded yet
+    write()
+    assert io.prepare_resume(tmp_path, key) == 0 and ckpt.exists()         # the same key: resume
+    assert io.prepare_resume(tmp_path, {**key, "code": "0" * 16}) == 1 and not ckpt.exists()   # other code
+    write()
+    assert io.prepare_resume(tmp_path, key) == 1           # written under the other code's marker
+    write()
+    assert io.prepare_resume(tmp_path, key, fresh=True) == 2
+    assert not ckpt.exists() and not section.exists() and other.exists()
