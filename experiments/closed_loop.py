@@ -76,21 +76,26 @@ def bandwidth_sweep(record: dict, closed: dict, fcs=FIGURE_FCS, progress: bool =
 
 def figure(sweep: dict, closed: dict, label: str):
     """Dwell residual [um] on the nominal model against the servo's bandwidth fc [Hz] (log scale), one
-    line per trajectory, its perfect-controller value dashed where the study has it."""
+    line per trajectory (a marker of its own each), its perfect-controller value dashed where the
+    study has it; one column wide, the legend below."""
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(6.4, 4.2))
+    from jaxflex.names import display_name
+    from jaxflex.plotting import COLUMN_WIDTH, MARKERS, legend_below
+
+    names = list(sweep["dwell_residual_um"])
+    fig, ax = plt.subplots(figsize=(COLUMN_WIDTH, 3.3 + 0.3 + 0.17 * len(names)), layout="constrained")
     perfect = next(iter(closed["fcs"].values()))
     for i, (name, values) in enumerate(sweep["dwell_residual_um"].items()):
-        ax.semilogy(sweep["fcs"], values, "o-", color=f"C{i}", label=name, lw=1.6 if name == "optimized" else 1.0)
+        ax.semilogy(sweep["fcs"], values, "-", marker=MARKERS[i % len(MARKERS)], ms=4, color=f"C{i}",
+                    label=display_name(name), lw=1.6 if name == "optimized" else 1.0)
         key = next((k for k in perfect if k == name or k.startswith(name + " ")), None)
         if key is not None and not name.endswith("rigid feedforward"):
             ax.axhline(perfect[key]["perfect_um"], color=f"C{i}", ls="--", lw=0.8)
-    ax.set(xlabel="servo bandwidth fc [Hz]", ylabel="dwell residual [um]",
-           title=f"{label}: under the servo (solid) and the perfect controller (dashed)")
-    ax.legend(fontsize=8)
+    ax.set(xlabel="servo bandwidth fc [Hz]", ylabel="dwell residual [µm]")
+    ax.set_title(f"{label}: under the servo (solid)\nand the perfect controller (dashed)", fontsize=10)
     ax.grid(True, which="both", alpha=0.3)
-    fig.tight_layout()
+    legend_below(fig, ncol=1)
     return fig
 
 

@@ -108,7 +108,7 @@ def figures(preset: str, out: Path) -> dict:
         f, p = joint_acc_psd(preset, tf, blends=("lame",), profiles=("poly7",))
         series[f"tf = {tf:g} s"] = np.interp(freqs, f, p["lame-poly7"][0])[None]
     paths["fig10_psd_cycle_time"] = out / "fig10_psd_cycle_time.png"
-    save_figure(plotting.psd_panels(freqs, series, "poly7-Lamé, joint 1: cycle time (Fig. 10)",
+    save_figure(plotting.psd_panels(freqs, series, "Lamé, 7th-degree polynomial, joint 1: cycle time (Fig. 10)",
                                     fmax=2000), paths["fig10_psd_cycle_time"])
 
     series = {}
@@ -116,7 +116,7 @@ def figures(preset: str, out: Path) -> dict:
         _, p = joint_acc_psd(preset, 1.0, d=d, blends=("lame",), profiles=("poly7",))
         series[f"d = e = {d * 1e3:g} mm"] = p["lame-poly7"][:1]
     paths["fig11_psd_blend_size"] = out / "fig11_psd_blend_size.png"
-    save_figure(plotting.psd_panels(freqs, series, "poly7-Lamé, joint 1: blend size (Fig. 11)",
+    save_figure(plotting.psd_panels(freqs, series, "Lamé, 7th-degree polynomial, joint 1: blend size (Fig. 11)",
                                     fmax=2000), paths["fig11_psd_blend_size"])
     return {k: str(v) for k, v in paths.items()}
 

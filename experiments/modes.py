@@ -76,23 +76,25 @@ def text(res: dict) -> str:
 
 
 def figure(results: list[dict]):
-    """First three frequencies along the path for each payload (one panel per mode)."""
+    """First three frequencies along the path for each payload (one panel per mode, two columns
+    wide, one legend below)."""
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 3, figsize=(13, 3.8))
-    for res in results:
+    from jaxflex.plotting import MARKERS, PAGE_WIDTH, legend_below, suptitle
+
+    fig, axes = plt.subplots(1, 3, figsize=(PAGE_WIDTH, 3.2), layout="constrained")
+    for i, res in enumerate(results):
         s = np.array([p["s"] for p in res["points"]]) * 1e3
         f = np.array([p["freqs_hz"] for p in res["points"]])
         for k, ax in enumerate(axes):
-            ax.plot(s, f[:, k], "o-", ms=3, label=f"{res['payload']:g} kg")
+            ax.plot(s, f[:, k], "-", marker=MARKERS[i % len(MARKERS)], ms=3, label=f"{res['payload']:g} kg")
     for k, ax in enumerate(axes):
         ax.set_title(f"mode {k + 1}")
-        ax.set_xlabel("arc length along the path [mm]")
+        ax.set_xlabel("arc length [mm]")
         ax.grid(alpha=0.3)
-        ax.legend()
-    axes[0].set_ylabel("frequency [Hz] (motors locked)")
-    fig.suptitle("Natural frequencies along the Adept path (Lamé, d = e = 25 mm)")
-    fig.tight_layout()
+    axes[0].set_ylabel("frequency [Hz]")
+    legend_below(fig, title="payload")
+    suptitle(fig, "Natural frequencies with the motors locked, along the Adept path (Lamé, d = e = 25 mm)")
     return fig
 
 

@@ -205,33 +205,40 @@ def _path_points(path, sigma):
 
 def figure(study, out_dir: Path):
     """The optimized motion law beside the best paper law and poly7, and the optimized path beside
-    the best paper path (PNG ``optimized_law.png``)."""
+    the best paper path (PNG ``optimized_law.png``, with its SVG copy)."""
     import matplotlib.pyplot as plt
 
+    from jaxflex.names import display_name
+    from jaxflex.plotting import LEGEND_SIZE, PAGE_WIDTH, legend_below
     from jaxflex.profiles import make_profile
 
     best = make_profile(study.best_paper)
     opt = study.candidates["optimized"].law
     eta = jnp.linspace(0, 1, 400)
-    fig, ax = plt.subplots(1, 3, figsize=(15, 3.8))
-    for p, lab in ((best, f"{study.best_paper} (best paper)"), (make_profile("poly7"), "poly7"), (opt, "optimized")):
+    fig, ax = plt.subplot_mosaic([["v", "a"], ["path", "path"]], figsize=(PAGE_WIDTH, 5.0), layout="constrained",
+                                 height_ratios=[1.0, 0.9])
+    laws = ((best, f"{display_name(study.best_paper)} (best paper)", dict(ls="--")),
+            (make_profile("poly7"), display_name("poly7"), dict(ls=":")),
+            (opt, "optimized", dict(ls="-", color="k", lw=1.6)))
+    for i, (p, lab, style) in enumerate(laws):
         v = profile_values(p, eta)
-        ax[0].plot(eta, v.ds, label=lab)
-        ax[1].plot(eta, v.dds, label=lab)
-    ax[0].set(xlabel="t / tf", ylabel="S'", title="motion law: velocity")
-    ax[1].set(xlabel="t / tf", ylabel="S''", title="acceleration")
-    ax[0].legend(fontsize=8)
+        style = dict(color=f"C{i}", lw=1.2) | style
+        ax["v"].plot(eta, v.ds, label=lab, **style)
+        ax["a"].plot(eta, v.dds, label=lab, **style)
+    ax["v"].set(xlabel="t / tf", ylabel="S'", title="motion law: velocity")
+    ax["a"].set(xlabel="t / tf", ylabel="S''", title="acceleration")
+    legend_below(fig, *ax["v"].get_legend_handles_labels(), loc="outside upper center")
     sigma = jnp.linspace(0.0, 1.0, 801)
-    for name, style in (("paper", dict(color="C0", lw=1.2)), ("optimized", dict(color="k", lw=1.6))):
+    for name, style in (("paper", dict(color="C0", lw=1.2, ls="--")), ("optimized", dict(color="k", lw=1.6))):
         if name == "optimized" and study.design is None:
             continue
         pts = 1e3 * (np.asarray(_path_points(study.paths[name], sigma)) - np.asarray(study.paths[name].cycle.pick))
-        label = (f"{study.blend} d = e = 25 mm (best paper)" if name == "paper"
-                 else f"optimized ({study.paths['optimized'].kind})")
-        ax[2].plot(pts[:, 0], pts[:, 1], label=label, **style)
-    ax[2].set(xlabel="x from the pick point [mm]", ylabel="y [mm]", title="path", aspect="auto")
-    ax[2].legend(fontsize=8)
-    for a in ax:
+        label = (f"{display_name(study.blend)}, d = e = 25 mm (best paper)" if name == "paper"
+                 else f"optimized ({display_name(study.paths['optimized'].kind)})")
+        ax["path"].plot(pts[:, 0], pts[:, 1], label=label, **style)
+    ax["path"].set(xlabel="x from the pick point [mm]", ylabel="y [mm]", title="path", aspect="auto")
+    ax["path"].legend(fontsize=LEGEND_SIZE, loc="lower center")
+    for a in ax.values():
         a.grid(alpha=0.3)
     save_figure(fig, out_dir / "optimized_law.png")
 
@@ -240,46 +247,54 @@ def box_figure(study, robot, out_path: Path) -> None:
     """Dwell residual [mm] of every trajectory on the random models of the uncertainty box against
     the model's first-mode frequency error at the place pose [%] (relative to its payload's nominal
     model), one panel per payload; ``robot``: the study's nominal robot; saved to ``out_path``."""
-    import matplotlib.pyplot as plt
-
     from jaxflex.model_sets import place_first_mode_hz
+    from jaxflex.names import display_name
+    from jaxflex.plotting import MARKERS, legend_below, panel_grid
 
     cycle = study.paths["paper"].cycle
     ids = study.sets["box"]
     f_nom = {m: place_first_mode_hz(build_model(ModelId(m), robot), cycle) for m in study.payloads}
     err = np.asarray([100 * (place_first_mode_hz(build_model(i, robot, cycle), cycle) / f_nom[i.payload] - 1)
                       for i in ids])
-    fig, axes = plt.subplots(1, len(study.payloads), figsize=(6.5 * len(study.payloads), 4.2), squeeze=False)
-    for ax, m in zip(axes[0], study.payloads):
+    names = list(study.evaluations["box"])
+    fig, axes = panel_grid(len(study.payloads), 3.0, 0.3 + 0.17 * len(names))
+    for ax, m in zip(axes, study.payloads):
         k = np.asarray([i.payload == m for i in ids])
         for n, (name, ev) in enumerate(study.evaluations["box"].items()):
-            style = dict(color="k", s=10, zorder=3) if name == "optimized" else dict(color=f"C{n}", s=6, alpha=0.6)
-            ax.scatter(err[k], 1e3 * ev["dwell_residual_mm"][k], label=name, **style)
-        ax.set(yscale="log", xlabel="first-mode frequency error at the place pose [%]",
-               ylabel="dwell residual [um]", title=f"{m:g} kg, tf = {study.tf:g} s: {int(k.sum())} random models")
+            style = (dict(color="k", marker="*", s=22, zorder=3) if name == "optimized" else
+                     dict(edgecolors=f"C{n}", facecolors="none", marker=MARKERS[n % len(MARKERS)], s=10, alpha=0.7))
+            ax.scatter(err[k], 1e3 * ev["dwell_residual_mm"][k], label=display_name(name), linewidths=0.8, **style)
+        ax.set(yscale="log", xlabel="first-mode frequency error\nat the place pose [%]", ylabel="dwell residual [µm]")
+        ax.set_title(f"{m:g} kg, tf = {study.tf:g} s: {int(k.sum())} random models", fontsize=10)
         ax.grid(alpha=0.3, which="both")
-        ax.legend(fontsize=7)
+    legend_below(fig, ncol=1 if len(study.payloads) == 1 else None)
     save_figure(fig, out_path)
 
 
 def error_figure(study, out_path: Path, payload_index: int = 0):
     """End-effector error |e| [mm] during the motion and |e - e_static| over the dwell, per
-    trajectory (nominal model of one payload)."""
+    trajectory (nominal model of one payload); every curve has a line style and a marker of its
+    own beside its colour (``jaxflex.plotting.curve_style``), the optimized one solid black."""
     import matplotlib.pyplot as plt
 
+    from jaxflex.names import display_name
+    from jaxflex.plotting import PAGE_WIDTH, curve_style, legend_below, legend_columns
+
     k = payload_index
-    fig, (a, b) = plt.subplots(1, 2, figsize=(12, 4.2))
+    labels = [display_name(name) for name in study.candidates]
+    rows = -(-len(labels) // legend_columns(labels, PAGE_WIDTH))
+    fig, (a, b) = plt.subplots(1, 2, figsize=(PAGE_WIDTH, 3.2 + 0.3 + 0.17 * rows), layout="constrained")
     for i, name in enumerate(study.candidates):
         s = study.series(name)
         e = np.linalg.norm(np.asarray(s.e[k]), axis=-1) * 1e3
         ed = np.linalg.norm(np.asarray(s.e_dwell[k] - s.e_static[k][None]), axis=-1) * 1e3
-        style = dict(lw=1.6, color="k") if name == "optimized" else dict(lw=0.9, color=f"C{i}")
-        a.plot(np.asarray(s.t[k]), e, label=name, **style)
+        style = dict(lw=1.6, color="k", ls="-") if name == "optimized" else dict(lw=1.0, color=f"C{i}", **curve_style(i))
+        a.plot(np.asarray(s.t[k]), e, label=display_name(name), **style)
         b.semilogy(np.asarray(s.t_dwell[k]), np.maximum(ed, 1e-7), **style)
-    a.set(xlabel="t [s]", ylabel="|e| [mm]", title="end-effector error during the motion")
+    a.set(xlabel="t [s]", ylabel="|e| [mm]", title="during the motion")
     b.set(xlabel="t [s]", ylabel="|e - e_static| [mm]", title="residual vibration in the dwell")
-    a.legend(fontsize=7)
-    fig.suptitle(f"{study.payloads[k]:g} kg, tf = {study.tf:g} s")
+    legend_below(fig)
+    fig.suptitle(f"End-effector error, {study.payloads[k]:g} kg, tf = {study.tf:g} s", fontsize=11)
     save_figure(fig, out_path)
 
 
@@ -532,19 +547,21 @@ def cycle_time_figure(rec: dict, out_path: Path):
     ``out_path``."""
     import matplotlib.pyplot as plt
 
+    from jaxflex.plotting import COLUMN_WIDTH, legend_below
+
     tf = [r["tf"] for r in rec["rows"]]
-    fig, ax = plt.subplots(figsize=(6, 4))
+    fig, ax = plt.subplots(figsize=(COLUMN_WIDTH, 4.2), layout="constrained")
     ax.semilogy(tf, [r["paper_best_mm"] for r in rec["rows"]], "o-", label="best of the 12 paper combinations")
     ax.semilogy(tf, [r["optimized_mm"] for r in rec["rows"]], "s-", label="optimized design")
     ax.semilogy(tf, [r["optimized_perturbed_worst_mm"] for r in rec["rows"]], "s:", color="C1", lw=0.8,
-                label="optimized, worst of 9 perturbed models")
+                markerfacecolor="none", label="optimized, worst of 9 perturbed models")
     ax.axhline(rec["target_perturbed_worst_mm"], color="C0", ls=":", lw=0.8,
                label=f"best paper at {rec['tf_ref']:g} s, worst perturbed")
     ax.axhline(rec["target_mm"], color="k", ls="--", lw=0.8, label=f"best paper at tf = {rec['tf_ref']:g} s")
-    ax.set(xlabel="motion time tf [s]", ylabel="dwell residual [mm]",
-           title=f"Residual vibration vs cycle time, {rec['payload']:g} kg")
+    ax.set(xlabel="motion time tf [s]", ylabel="dwell residual [mm]")
+    ax.set_title(f"Residual vibration vs cycle time, {rec['payload']:g} kg", fontsize=10)
     ax.grid(alpha=0.3)
-    ax.legend(fontsize=8)
+    legend_below(fig, ncol=1)
     save_figure(fig, out_path)
 
 
