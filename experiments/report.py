@@ -140,7 +140,12 @@ def optimization_section(res: dict, out: Path) -> str:
     lines += ["### Cycle-time study", "", "```", ct["text"], "```", "",
               "![Pareto](cycle_time/cycle_time.png)", "",
               "*Dwell residual against motion time: the best of the 12 paper combinations and the optimized "
-              "design at each tf; the dashed line is the best paper combination at 0.43 s.*", ""]
+              "design at each tf; the dashed line is the best paper combination at 0.43 s. Each tf has a design "
+              "of its own, optimized for the worst model of the uncertainty box, not for the nominal one: the "
+              "nominal residual is not what was minimized, and a robust design's nominal value sits anywhere "
+              "below its worst case, so the nominal curve need not fall as tf grows. The worst-model curve is the "
+              "figure each design was trained for. The paper's curve is not monotone either: a single "
+              "combination's residual depends on the phase at which the motion ends.*", ""]
     return "\n".join(lines)
 
 
