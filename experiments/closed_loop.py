@@ -7,7 +7,6 @@ residual at several bandwidths; ``figure`` draws it.
 """
 from __future__ import annotations
 
-import jax.numpy as jnp
 
 from jaxflex.designs import design_path
 from jaxflex.optimize.closed_loop import Controller, ServoModel, Trajectory, closed_loop_study, evaluate
@@ -17,7 +16,7 @@ from jaxflex.robot import cycle_preset, robot_preset
 from jaxflex.sweep import default_grid
 from jaxflex.uncertainty import ModelId
 
-from .io import design_of_record
+from .io import corners_design, design_of_record
 
 FCS = (15.0, 40.0)                          # the bandwidths of the comparison [Hz]
 FIGURE_FCS = (10.0, 15.0, 20.0, 25.0, 30.0, 40.0)
@@ -50,10 +49,8 @@ def bandwidth_sweep(record: dict, closed: dict, fcs=FIGURE_FCS, progress: bool =
     robot, cycle = robot_preset("default").replace(payload=payload), cycle_preset("default")
     x, law, blend = design_of(record)
     if "refined" in closed:
-        r = closed["refined"]["design"]
-        x = x._replace(d=jnp.asarray([c["d_m"] for c in r["corners"]]), e=jnp.asarray([c["e_m"] for c in r["corners"]]),
-                       n=jnp.asarray([c["n"] for c in r["corners"]]), coef=jnp.asarray(r["coef"]))
-        law = shaped(jnp.asarray(r["coef"]), law.order, name="optimized")
+        x = corners_design(closed["refined"]["design"])
+        law = shaped(x.coef, law.order, name="optimized")
     c = closed["controller"]
     first = next(iter(closed["paper"]))
     b, p = closed["paper"][first]["best"].split("/")

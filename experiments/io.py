@@ -107,6 +107,15 @@ def table(headers, rows) -> str:
     return "\n".join([line(cells[0]), sep] + [line(r) for r in cells[1:]])
 
 
+def corners_design(record: dict):
+    """The ``Design`` of a record's ``{"corners": [{d_m, e_m, n}, {d_m, e_m, n}], "coef": [...]}``: a
+    free-path design's entry, and a closed-loop study's ``refined`` design. Imports JAX."""
+    from jaxflex.designs import design
+
+    c, coef = record["corners"], [float(v) for v in record["coef"]]
+    return design(c[0]["d_m"], c[0]["e_m"], c[0]["n"], coef, d2=c[1]["d_m"], e2=c[1]["e_m"], n2=c[1]["n"])
+
+
 def design_of_record(record: dict):
     """(Design, blend family, law order) of the ``design`` entry of ``jaxflex optimize``'s JSON
     (docs/conventions.md#file-formats): both corners' blend parameters (d, e [m], n; a law-only
@@ -115,8 +124,7 @@ def design_of_record(record: dict):
 
     p, coef = record["path"], [float(v) for v in record["coef"]]
     if p.get("free", True):
-        c = p["corners"]
-        x = design(c[0]["d_m"], c[0]["e_m"], c[0]["n"], coef, d2=c[1]["d_m"], e2=c[1]["e_m"], n2=c[1]["n"])
+        x = corners_design({"corners": p["corners"], "coef": coef})
     else:
         x = design(p["d"], p["e"], p["n"], coef)
     return x, p["blend"], int(record.get("order", 3))

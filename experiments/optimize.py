@@ -30,7 +30,7 @@ from jaxflex.robot import igm
 from jaxflex.trajectory import task_from_arc
 from jaxflex.uncertainty import ModelId
 
-from .io import fmt, provenance, robot_and_cycle, save_figure, setup_record, table, write_json, write_text
+from .io import corners_design, fmt, provenance, robot_and_cycle, save_figure, setup_record, table, write_json, write_text
 
 
 
@@ -324,11 +324,8 @@ def closed_loop_section(study, robot, cycle, payload: float, tf: float, options:
                        ruckig=config.ruckig, scenarios=options.get("scenarios", SCENARIOS), progress=True)
     path, law = study.paths["optimized"], study.candidates["optimized"].law
     if "refined" in rec:
-        from jaxflex.designs import design as make_design
-
-        c, coef = rec["refined"]["design"]["corners"], np.asarray(rec["refined"]["design"]["coef"])
-        x = make_design(c[0]["d_m"], c[0]["e_m"], c[0]["n"], coef, d2=c[1]["d_m"], e2=c[1]["e_m"], n2=c[1]["n"])
-        path, law = design_path(cycle, x, config.train.blend), shaped(jnp.asarray(coef), order, name="optimized")
+        x = corners_design(rec["refined"]["design"])
+        path, law = design_path(cycle, x, config.train.blend), shaped(x.coef, order, name="optimized")
     servo = cycle_servo(robot.replace(payload=payload), cycle, controller.fc, rate=controller.rate,
                         rotor_inertia=controller.rotor, feedforward=controller.feedforward)
     return rec, (path, law, servo)

@@ -50,3 +50,21 @@ def test_a_rerun_resumes_only_from_the_same_code_and_fresh_starts_over(tmp_path)
     write()
     assert io.prepare_resume(tmp_path, key, fresh=True) == 2
     assert not ckpt.exists() and not section.exists() and other.exists()
+
+
+def test_a_refined_design_record_reads_back_as_the_design_it_was_written_from():
+    """``corners_design`` inverts the closed-loop study's ``refined`` entry (both corners' d, e [m]
+    and n, the law's coefficients), exactly: JSON keeps float64."""
+    import json
+
+    import numpy as np
+
+    from jaxflex.designs import design
+    from jaxflex.experiments.io import corners_design
+
+    x = design(0.021, 0.13, 3.5, [1.5, 0.25, -0.75, 2.0], d2=0.024, e2=0.11, n2=4.25)
+    rec = json.loads(json.dumps({"corners": [{"d_m": float(x.d[k]), "e_m": float(x.e[k]), "n": float(x.n[k])}
+                                             for k in range(2)], "coef": np.asarray(x.coef).tolist()}))
+    y = corners_design(rec)
+    for a, b in zip(x, y):
+        assert np.array_equal(np.asarray(a), np.asarray(b)) and np.asarray(b).dtype == np.float64
