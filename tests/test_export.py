@@ -104,7 +104,7 @@ def test_the_controller_file_states_the_bandwidth_gains_and_every_unit(rigid_fil
 
 
 @pytest.mark.xdist_group("commands")        # the 6 kg, 0.43 s programs of the command tests
-def test_the_flexible_feedforward_differs_from_the_rigid_one_by_the_elastic_part():
+def test_the_flexible_feedforward_differs_from_the_rigid_one_by_the_elastic_part(tmp_path):
     """The flexible feedforward (the perfect controller's torque of the elastic model) against the
     rigid one on the same motion at 1 kHz: within 30 % of the peak torque (measured: 20 %, the
     links' deflection under the inertial loads) but not equal (above 1 %); at t = 0 both hold the
@@ -128,6 +128,12 @@ def test_the_flexible_feedforward_differs_from_the_rigid_one_by_the_elastic_part
     rest = rigid[-1, 9:]                                    # q' = q'' = 0 at tf: the gravity torque
     assert np.max(np.abs(held[-1, 9:] - rest)) < 1e-3 * peak
     assert np.max(np.abs(flexible[-1, 9:] - rest)) > 1e-2 * peak
+    # and the files a servo's export writes carry that row
+    six = robot_preset("default", payload=6.0)
+    servo = sv.cycle_servo(six, CYCLE, 15.0, feedforward="flexible")
+    csv_path, _ = export.write_controller_files(tmp_path, six, PATH, law, TF, servo, rate=1000)
+    _, rows = _read(csv_path)
+    np.testing.assert_allclose(rows[-1, 9:], held[-1, 9:], rtol=1e-10)
 
 
 def test_the_export_refuses_a_bad_rate():
