@@ -50,7 +50,9 @@ def compute(preset: str = "default", payload: float = 6.0, points: int = 21, ble
     summary = {f"mode_{k + 1}": {"min": float(freqs[:, k].min()), "max": float(freqs[:, k].max()),
                                  "mean": float(freqs[:, k].mean())} for k in range(3)}
     return {"payload": float(payload), "preset": setup_record(preset), "blend": blend, "points": pts,
-            "summary": summary, "paper": paper_data.FREQUENCIES_HZ.get(float(payload)),
+            "summary": summary,
+            # the paper's frequencies belong to the paper's robot: none beside a robot of your own
+            "paper": paper_data.FREQUENCIES_HZ.get(float(payload)) if isinstance(preset, str) else None,
             "provenance": provenance({"preset": setup_record(preset), "payload": payload, "points": points,
                                       "blend": blend, "d": d}, started)}
 

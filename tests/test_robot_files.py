@@ -93,3 +93,16 @@ def test_an_unreachable_move_fails_before_anything_compiles(capsys):
     status = cli.main(["sweep", "--pick", "-0.9", "0.0", "--place", "0.15", "0.3", "--repeats", "0"])
     assert status == 2
     assert "unreachable by arm 1" in capsys.readouterr().err
+
+
+def test_a_robot_of_your_own_gets_no_paper_column():
+    """The paper's natural frequencies belong to the paper's robot: ``modes`` puts them beside a
+    preset's results only, never beside a robot from a file (the same payload, other links)."""
+    from jaxflex.experiments import modes
+
+    own = rf.setup("default", pick=(-0.15, 0.32), place=(0.15, 0.32))
+    own = own._replace(robot=own.robot.replace(l1=0.26, l2=0.40))
+    res = modes.compute(own, 6.0, points=2)
+    assert res["paper"] is None
+    rows = [line.split("|") for line in modes.text(res).splitlines() if line.startswith("| mode")]
+    assert rows and all(r[3].strip() == "-" for r in rows)
