@@ -65,9 +65,9 @@ class Setup(NamedTuple):
 
 
 def setup(preset: str = "default", robot_file=None, cycle_file=None, pick=None, place=None,
-          lift: float | None = None) -> Setup:
+          h: float | None = None) -> Setup:
     """The robot and cycle of a run. The cycle: ``cycle_file``, else the Adept cycle from ``pick`` to
-    ``place`` (x, y) [m] with lift height ``lift`` [m] (0.025 by default) perpendicular to the
+    ``place`` (x, y) [m] with lift height ``h`` [m] (0.025 by default) perpendicular to the
     traverse, on the side of the preset cycle's lift, else the preset's cycle. The robot: ``robot_file`` (its assembly mode, if the file
     does not state it, from the cycle's pick point), else the preset's robot. Reachability of the
     cycle and the model's range are checked by the runs."""
@@ -75,7 +75,7 @@ def setup(preset: str = "default", robot_file=None, cycle_file=None, pick=None, 
 
     base = cycle_preset(preset)
     if cycle_file is not None:
-        if pick is not None or place is not None or lift is not None:
+        if pick is not None or place is not None or h is not None:
             raise ValueError("give the move either as a cycle file or as pick, place and lift, not both")
         cycle = load_cycle(cycle_file)
     elif pick is not None or place is not None:
@@ -84,9 +84,9 @@ def setup(preset: str = "default", robot_file=None, cycle_file=None, pick=None, 
         t = np.asarray(place, dtype=float) - np.asarray(pick, dtype=float)
         normal = np.array([-t[1], t[0]]) / max(np.linalg.norm(t), 1e-300)    # the lift: perpendicular to the traverse
         normal = normal if normal @ np.asarray(base.lift) >= 0 else -normal  # on the preset's side
-        cycle = make_cycle(pick, place, h=0.025 if lift is None else lift, lift=normal)
-    elif lift is not None:
-        cycle = make_cycle(np.asarray(base.pick), np.asarray(base.place), h=lift, lift=np.asarray(base.lift))
+        cycle = make_cycle(pick, place, h=0.025 if h is None else h, lift=normal)
+    elif h is not None:
+        cycle = make_cycle(np.asarray(base.pick), np.asarray(base.place), h=h, lift=np.asarray(base.lift))
     else:
         cycle = base
     servo = None

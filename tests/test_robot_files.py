@@ -57,7 +57,7 @@ def test_a_bad_robot_file_is_refused_with_the_reason(tmp_path, text, match):
 
 
 def test_the_setup_takes_the_move_from_points_or_a_file_and_refuses_both():
-    s = rf.setup("default", pick=(-0.15, 0.32), place=(0.15, 0.32), lift=0.03)
+    s = rf.setup("default", pick=(-0.15, 0.32), place=(0.15, 0.32), h=0.03)
     assert rf.cycle_to_dict(s.cycle) == {"pick": [-0.15, 0.32], "place": [0.15, 0.32], "h": 0.03, "lift": [0.0, 1.0]}
     assert s.name.startswith("default / pick (-0.15, 0.32)")
     with pytest.raises(ValueError, match="both the pick and the place"):
