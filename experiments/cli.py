@@ -79,18 +79,16 @@ def servo_options(args, setup=None) -> dict | None:
     feedforward, and the robot file's other settings); a flag given wins over the robot file's
     ``[servo]`` table (``setup``: ``run_setup``'s), which wins over the defaults. None when neither
     --servo nor the file sets fc."""
-    file = {} if setup is None or isinstance(setup, str) or setup.servo is None else dict(setup.servo)
-    fc = args.servo if getattr(args, "servo", None) is not None else file.pop("fc", None)
-    file.pop("fc", None)
+    own = setup is not None and not isinstance(setup, str)
+    file = dict(setup.servo) if own and setup.servo is not None else {}
+    given = lambda flag, default: flag if flag is not None else default
+    fc = given(getattr(args, "servo", None), file.get("fc"))
     if fc is None:
         return None
-    rotor = args.rotor_inertia
-    if rotor is None:
-        m = 0.0 if setup is None or isinstance(setup, str) else float(setup.robot.rotor_inertia)
-        rotor = m if m > 0 else 0.01
-    return {**file, "fc": fc, "rate": args.servo_rate if args.servo_rate is not None else file.pop("rate", 8000.0),
-            "rotor_inertia": rotor,
-            "feedforward": args.feedforward or file.pop("feedforward", None) or args.feedforward_default}
+    rotor = float(setup.robot.rotor_inertia) if own else 0.0
+    return {**file, "fc": fc, "rate": given(args.servo_rate, file.get("rate", 8000.0)),
+            "rotor_inertia": given(args.rotor_inertia, rotor if rotor > 0 else 0.01),
+            "feedforward": args.feedforward or file.get("feedforward") or args.feedforward_default}
 
 
 def build_parser() -> argparse.ArgumentParser:

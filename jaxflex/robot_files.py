@@ -21,7 +21,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from jaxflex.path import Cycle, make_cycle
-from jaxflex.robot import Robot, make_robot
+from jaxflex.robot import Robot, cycle_preset, make_robot, robot_preset
 
 # [robot] keys -> their unit, for the written file's comments and the errors
 ROBOT_KEYS = {
@@ -71,8 +71,6 @@ def setup(preset: str = "default", robot_file=None, cycle_file=None, pick=None, 
     traverse, on the side of the preset cycle's lift, else the preset's cycle. The robot: ``robot_file`` (its assembly mode, if the file
     does not state it, from the cycle's pick point), else the preset's robot. Reachability of the
     cycle and the model's range are checked by the runs."""
-    from jaxflex.robot import cycle_preset, robot_preset
-
     base = cycle_preset(preset)
     if cycle_file is not None:
         if pick is not None or place is not None or h is not None:
