@@ -111,6 +111,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--steps", type=int, default=20000,
                    help="time steps over [0, tf] for the maxima (default: %(default)s)")
     p.add_argument("--out", metavar="DIR", help="write Figs. 6, 7, 8, 10, 11 (PNG) to DIR")
+    _add_setup(p)
 
     p = sub.add_parser("modes", help="natural frequencies along the path (motors locked)",
                        description="Natural frequencies and their spread along the Adept path with "
@@ -312,7 +313,7 @@ def main(argv=None) -> int:
         if args.command == "kinematics":
             from jaxflex.experiments import kinematics
 
-            kinematics.run(args.preset, args.tf, out=args.out, json_path=args.json, steps=args.steps)
+            kinematics.run(run_setup(args), args.tf, out=args.out, json_path=args.json, steps=args.steps)
         elif args.command == "modes":
             from jaxflex.experiments import modes
 

@@ -13,13 +13,13 @@ import numpy as np
 from jaxflex import checks, plotting
 from jaxflex.blends import BLENDS, blend_frame, make_blend
 from jaxflex.profiles import PROFILES, make_profile, profile_eval
-from jaxflex.robot import check_motion_loads, cycle_preset, robot_preset
+from jaxflex.robot import check_motion_loads
 from jaxflex.spectral import welch
 from jaxflex.combinations import sample_combinations
 from jaxflex.trajectory import time_grid
 
 from . import paper_data
-from .io import fmt, pct, provenance, rel_diff, save_figure, table, write_json
+from .io import fmt, pct, provenance, rel_diff, robot_and_cycle, save_figure, setup_name, setup_record, table, write_json
 
 D = 0.025                 # blend size of the paper's 12 combinations [m]
 EXTENDED_E = {"lame_extended": 0.0445, "clothoid_extended": 0.044}   # docs/conventions.md#adept-cycle-and-blends
@@ -50,10 +50,11 @@ def _samples_at_rate(robot, cycle, tf: float, rate: float, **kw):
     return jax.tree_util.tree_map(lambda a: a[:, : n + 1], traj), labels
 
 
-def accelerations(preset: str, tf: float, steps: int) -> dict:
+def accelerations(preset, tf: float, steps: int) -> dict:
     """Tables 5 and 6: max |X''| [m/s^2] and max |q''| [rad/s^2] over the motion, exact (analytic
-    derivatives on a fine grid) and as a second difference of q sampled every FD_STEP."""
-    robot, cycle = robot_preset(preset), cycle_preset(preset)
+    derivatives on a fine grid) and as a second difference of q sampled every FD_STEP. ``preset``: a
+    preset's name or a ``jaxflex.robot_files.Setup`` (``io.robot_and_cycle``)."""
+    robot, cycle = robot_and_cycle(preset)
     t = time_grid(tf, steps)
     traj, labels = sample_combinations(robot, cycle, tf, t, d=D)
     task = np.max(np.linalg.norm(np.asarray(traj.xdd), axis=-1), axis=1)
@@ -66,9 +67,9 @@ def accelerations(preset: str, tf: float, steps: int) -> dict:
     return {"task_acc_max": nest(task), "joint_acc_max": nest(joint), "joint_acc_max_fd_1ms": nest(fd)}
 
 
-def joint_acc_psd(preset: str, tf: float, d: float = D, profiles=PROFILES, blends=BLENDS):
+def joint_acc_psd(preset, tf: float, d: float = D, profiles=PROFILES, blends=BLENDS):
     """PSD of both joint accelerations for blends x profiles at tf (sampled at PSD_FS)."""
-    robot, cycle = robot_preset(preset), cycle_preset(preset)
+    robot, cycle = robot_and_cycle(preset)
     traj, labels = _samples_at_rate(robot, cycle, tf, PSD_FS, d=d, blends=blends, profiles=profiles)
     qdd = jnp.swapaxes(traj.qdd[:, :-1], 1, 2)               # (C, 2, T): samples at t < tf
     freqs, psd = welch(qdd, PSD_FS, min(PSD_NPERSEG, qdd.shape[-1]))
@@ -81,7 +82,7 @@ def _blend_points(blend, u):
     return jax.vmap(lambda x: blend_frame(blend, x * blend.length).pos)(u)
 
 
-def figures(preset: str, out: Path) -> dict:
+def figures(preset, out: Path) -> dict:
     """Figs. 6, 7, 8, 10, 11 as PNG files in ``out``; returns name -> path."""
     out.mkdir(parents=True, exist_ok=True)
     paths = {}
@@ -121,53 +122,62 @@ def figures(preset: str, out: Path) -> dict:
     return {k: str(v) for k, v in paths.items()}
 
 
-def compute(preset: str = "default", tf: float = 1.0, steps: int = 20000) -> dict:
-    """All kinematic tables as the JSON structure of docs/conventions.md#file-formats (plus paper values
-    and provenance)."""
+def compute(preset="default", tf: float = 1.0, steps: int = 20000) -> dict:
+    """All kinematic tables as the JSON structure of docs/conventions.md#file-formats (plus provenance,
+    and the paper's values for a preset). ``preset``: a preset's name, or a
+    ``jaxflex.robot_files.Setup`` (a robot and move from files: its tables have no paper column, the
+    paper's robot and move being another)."""
     started = time.time()
     tf, steps = checks.positive("tf", tf, "s"), checks.count("steps", steps, 2)
-    check_motion_loads(robot_preset(preset), cycle_preset(preset), tf)     # e.g. tf = 1e-300: nothing to sample
-    result = {"preset": preset, "tf": tf, "blend_length_mm": blend_lengths_mm()}
+    check_motion_loads(*robot_and_cycle(preset), tf)     # e.g. tf = 1e-300: nothing to sample
+    result = {"preset": setup_record(preset), "tf": tf, "blend_length_mm": blend_lengths_mm()}
     result.update(accelerations(preset, tf, steps))
-    result["paper"] = {"blend_length_mm": paper_data.TABLE2_BLEND_LENGTH_MM,
-                       "task_acc_max": paper_data.TABLE5_TASK_ACC,
-                       "joint_acc_max": paper_data.TABLE6_JOINT_ACC}
+    if isinstance(preset, str):
+        result["paper"] = {"blend_length_mm": paper_data.TABLE2_BLEND_LENGTH_MM,
+                           "task_acc_max": paper_data.TABLE5_TASK_ACC,
+                           "joint_acc_max": paper_data.TABLE6_JOINT_ACC}
     result["notes"] = {
         "extended_e_mm": {k: v * 1e3 for k, v in EXTENDED_E.items()},
         "joint_acc_max_fd_1ms": "second difference of the IGM joint angles sampled every 1 ms; the "
                                 "exact maximum is joint_acc_max",
     }
-    result["provenance"] = provenance({"preset": preset, "tf": tf, "steps": steps}, started)
+    result["provenance"] = provenance({"preset": setup_record(preset), "tf": tf, "steps": steps}, started)
     return result
 
 
 def tables_markdown(res: dict) -> str:
-    """Tables 2, 5, 6: ours beside the paper's with relative differences."""
-    pap = res["paper"]
-    rows = [[k, fmt(v, 6), fmt(pap["blend_length_mm"].get(k)), pct(rel_diff(v, pap["blend_length_mm"].get(k)))]
+    """Tables 2, 5, 6: ours beside the paper's with relative differences; ours alone for a robot or
+    move from files (no paper values: ``compute``)."""
+    pap = res.get("paper")
+    cols = ("ours", "paper", "diff") if pap else ("ours",)
+
+    def cells(ours, ref):
+        return [fmt(ours), fmt(ref), pct(rel_diff(ours, ref))] if pap else [fmt(ours)]
+
+    rows = [[k, fmt(v, 6)] + (cells(v, pap["blend_length_mm"].get(k))[1:] if pap else [])
             for k, v in res["blend_length_mm"].items()]
-    out = ["### Table 2: blend lengths [mm]", "", table(["curve", "ours", "paper", "diff"], rows), ""]
-    tf_note = "" if res["tf"] == 1.0 else f" (ours at tf = {res['tf']:g} s; the paper's at 1 s)"
+    out = ["### Table 2: blend lengths [mm]", "", table(["curve", *cols], rows), ""]
+    tf_note = "" if res["tf"] == 1.0 or not pap else f" (ours at tf = {res['tf']:g} s; the paper's at 1 s)"
     for key, title, unit in (("task_acc_max", "Table 5: max task acceleration", "m/s^2"),
                              ("joint_acc_max", "Table 6: max joint acceleration", "rad/s^2")):
         rows = []
         for p in PROFILES:
             row = [p]
             for b in BLENDS:
-                ours, ref = res[key][b][p], pap[key][b][p]
-                row += [fmt(ours), fmt(ref), pct(rel_diff(ours, ref))]
+                row += cells(res[key][b][p], pap[key][b][p] if pap else None)
             if key == "joint_acc_max":
-                row += [fmt(res["joint_acc_max_fd_1ms"]["lame"][p]),
-                        pct(rel_diff(res["joint_acc_max_fd_1ms"]["lame"][p], pap[key]["lame"][p]))]
+                fd = res["joint_acc_max_fd_1ms"]["lame"][p]
+                row += cells(fd, pap[key]["lame"][p] if pap else None)[::2] if pap else [fmt(fd)]
             rows.append(row)
-        headers = ["profile"] + [f"{b} {c}" for b in BLENDS for c in ("ours", "paper", "diff")]
+        headers = ["profile"] + ([f"{b} {c}" for b in BLENDS for c in cols] if pap else list(BLENDS))
         if key == "joint_acc_max":
-            headers += ["lame ours (1 ms diff.)", "diff"]
-        out += [f"### {title} [{unit}], preset `{res['preset']}`{tf_note}", "", table(headers, rows), ""]
+            headers += ["lame ours (1 ms diff.)", "diff"] if pap else ["lame (1 ms diff.)"]
+        where = f"preset `{res['preset']}`" if isinstance(res["preset"], str) else f"`{setup_name(res['preset'])}`"
+        out += [f"### {title} [{unit}], {where}{tf_note}", "", table(headers, rows), ""]
     return "\n".join(out)
 
 
-def run(preset: str = "default", tf: float = 1.0, out: str | None = None, json_path: str | None = None,
+def run(preset="default", tf: float = 1.0, out: str | None = None, json_path: str | None = None,
         steps: int = 20000, make_figures: bool = True) -> dict:
     """Compute, print the tables, write JSON and figures."""
     res = compute(preset, tf, steps)

@@ -106,3 +106,27 @@ def test_a_robot_of_your_own_gets_no_paper_column():
     assert res["paper"] is None
     rows = [line.split("|") for line in modes.text(res).splitlines() if line.startswith("| mode")]
     assert rows and all(r[3].strip() == "-" for r in rows)
+
+
+def test_kinematics_of_a_robot_and_move_from_files():
+    """``kinematics`` takes a robot and a move from files. The paper's robot and cycle as files
+    (examples/) give the preset's Tables 5 and 6 to round-off: the same model reached another way.
+    Other links on the same move leave the task accelerations as they are (the path and the law are
+    Cartesian, the robot does not enter them) and change the joint accelerations (the inverse
+    kinematics does: more than 1 % somewhere); and a robot of one's own gets no paper column."""
+    from jaxflex.experiments import kinematics
+
+    files = rf.setup("default", EXAMPLES / "paper_robot.toml", EXAMPLES / "paper_cycle.toml")
+    preset, same = kinematics.compute("default", 0.43, 2000), kinematics.compute(files, 0.43, 2000)
+    other = files._replace(robot=files.robot.replace(l1=0.26, l2=0.40))
+    own = kinematics.compute(other, 0.43, 2000)
+    flat = lambda res, key: np.asarray([[res[key][b][p] for p in sorted(res[key][b])] for b in sorted(res[key])])
+    for key in ("task_acc_max", "joint_acc_max", "joint_acc_max_fd_1ms"):
+        np.testing.assert_allclose(flat(same, key), flat(preset, key), rtol=1e-12)
+    np.testing.assert_allclose(flat(own, "task_acc_max"), flat(preset, "task_acc_max"), rtol=1e-12)
+    assert np.max(np.abs(flat(own, "joint_acc_max") / flat(preset, "joint_acc_max") - 1)) > 0.01
+    assert "paper" in preset and "paper" not in same and "paper" not in own
+    text = kinematics.tables_markdown(own)
+    headers = [line for line in text.splitlines() if line.startswith(("| profile", "| curve"))]
+    cells = {c.strip() for h in headers for c in h.split("|")}
+    assert len(headers) == 3 and "diff" not in cells and not any("paper" in c for c in cells)
