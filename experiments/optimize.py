@@ -9,6 +9,7 @@ on the nominal, perturbed and damped models; peak torque), writes the JSON
 from __future__ import annotations
 
 import time
+import warnings
 from pathlib import Path
 
 import jax
@@ -18,6 +19,7 @@ import numpy as np
 from jaxflex import checks
 from jaxflex.model_sets import build_model
 from jaxflex.optimize.config import StudyConfig
+from jaxflex.optimize.evaluation import nominal_accuracy
 from jaxflex.export import DEFAULT_RATE_HZ as CSV_RATE_HZ, write_controller_files
 from jaxflex.optimize.cycle_time import TORQUE_TOL
 from jaxflex.optimize.study import optimize_design
@@ -27,6 +29,7 @@ from jaxflex.problem import Problem, Timing
 from jaxflex.profiles import profile_eval, profile_values
 from jaxflex.progress import stage
 from jaxflex.robot import igm
+from jaxflex.sweep import StepWarning
 from jaxflex.trajectory import task_from_arc
 from jaxflex.uncertainty import ModelId
 
@@ -65,10 +68,13 @@ def design_record(study) -> dict:
                      "length_m": float(study.paths["optimized"].length)}, **law}
 
 
-def summary(study) -> dict:
+def summary(study, accuracy: dict | None = None) -> dict:
     """Per candidate: dwell residual [mm] (nominal per payload, worst perturbed, damped per payload),
     peak torque [N m] (nominal), and the ratio of the best paper combination's residual to the
-    candidate's (nominal, per perturbed model, worst over worst)."""
+    candidate's (nominal, per perturbed model, worst over worst); with ``accuracy``
+    (``optimize.evaluation.nominal_accuracy``) the nominal metrics' error estimates
+    (``error_estimate``: metric -> per payload, in the metric's unit) and the dwell residual's
+    tolerance [mm] per payload."""
     ev = study.evaluations
     best = next(k for k in ev["nominal"] if k.endswith("(best paper)"))
     out = {}
@@ -92,7 +98,27 @@ def summary(study) -> dict:
             "residual_energy": nom["residual_energy"].tolist(),
             "metrics": {k: v.tolist() for k, v in nom.items()},
         }
+        if accuracy and name in accuracy:
+            acc = accuracy[name]
+            out[name]["error_estimate"] = {k: np.asarray(v).tolist() for k, v in acc.errors.items()}
+            out[name]["dwell_residual_tolerance_mm"] = np.asarray(acc.tolerance_mm).tolist()
+            out[name]["error_estimate_ratio"] = acc.ratio       # 2: against a coarser grid; 1/2: a finer one
     return out
+
+
+def accuracy_summary(accuracy: dict) -> dict | None:
+    """The nominal evaluations' error estimate as a record (``jaxflex sweep --json``'s ``accuracy``
+    keys): met by every candidate or not, the largest estimate over its tolerance, the grids."""
+    if not accuracy:
+        return None
+    accs = list(accuracy.values())
+    worst = max(float(np.max(np.asarray(a.errors["dwell_residual_mm"]) / a.tolerance_mm)) for a in accs)
+    a = accs[0]
+    return {"method": "step doubling: |m - m_coarser| / (r - 1), the nominal models; where that misses the "
+                      "tolerance, every step halved: 2 |m - m_finer| (each law's error_estimate_ratio: 2 or 1/2)",
+            "rtol": a.rtol, "atol_mm": a.atol_mm, "met": all(x.met for x in accs), "ratio": a.ratio,
+            "grid": a.grid._asdict(), "compared_with": a.compared_with._asdict(),
+            "max_estimate_over_tolerance": worst}
 
 
 def _box_summary(study, metrics: dict) -> dict:
@@ -149,7 +175,9 @@ def text(rec: dict) -> str:
              "min x per model", "damped [mm]"] + ["box worst [mm]", "box p95 [mm]"] * box
             + ["richer [mm]"] * rich + ["torque [N m]"])
     j = lambda v: " / ".join(fmt(x, 3) for x in v)
-    rows = [[k, j(v["dwell_residual_mm"]), j(v["ratio_best_paper"]), fmt(v["perturbed_worst_mm"], 3),
+    pm = lambda v: " / ".join(fmt(x, 3) + (f" ± {fmt(e, 2)}" if e is not None else "") for x, e in zip(
+        v["dwell_residual_mm"], v.get("error_estimate", {}).get("dwell_residual_mm", [None] * len(v["dwell_residual_mm"]))))
+    rows = [[k, pm(v), j(v["ratio_best_paper"]), fmt(v["perturbed_worst_mm"], 3),
              fmt(v["perturbed_ratio_of_worst"], 3), fmt(v["perturbed_ratio_worst"], 3), j(v["damped_mm"])]
             + ([j(v["box_worst_mm"]), j(v["box_p95_mm"])] if box else []) + ([j(v["richer_mm"])] if rich else [])
             + [j(v["max_torque_nm"])] for k, v in rec["laws"].items()]
@@ -170,11 +198,23 @@ def text(rec: dict) -> str:
             + (f"; box: {nbox} random models of the uncertainty box per payload" if box else "")
             + ("; richer: the richer validation model (every link in bending and tension)" if rich else "")
             + ".\n\n"
-            + table(head, rows)
+            + table(head, rows) + _accuracy_text(rec)
             + f"\n\noptimizer: {rec['steps_run']} steps, stopped: {rec['stopped']}, {rec['optimize_s']:.0f} s "
               f"(the first step, {rec['step_times_s'][0] if rec['step_times_s'] else 0:.0f} s, includes compiling "
               f"the gradient unless the compilation cache had it); study {rec['provenance']['wall_time_s']:.0f} s"
             + _milestone_text(rec) + _verification_text(rec))
+
+
+def _accuracy_text(rec: dict) -> str:
+    """The line under the table on the nominal dwell residuals' error estimate."""
+    acc = rec.get("accuracy")
+    if not acc:
+        return ""
+    return (f"\n\nNominal dwell ± its estimated discretization error (step doubling against a grid "
+            f"{acc['ratio']:.2g}x coarser, or where that misses, against every step halved; "
+            f"docs/conventions.md#accuracy); tolerance {100 * acc['rtol']:g} % of it or "
+            f"{1e6 * acc['atol_mm']:g} nm: " + ("met" if acc["met"] else "MISSED")
+            + f" (largest estimate {acc['max_estimate_over_tolerance']:.2g} x its tolerance).")
 
 
 def _milestone_text(rec: dict) -> str:
@@ -384,11 +424,22 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, out=None, verify=False, 
         ckpt = Path(out) / "checkpoint.npz"
     config = config.with_optimizer(checkpoint=ckpt)
     study = optimize_design(Problem(robot, cycle, tuple(payloads), Timing(tf, 0.1, grid)), config)
+    accuracy = nominal_accuracy(study.evaluators["nominal"], study.candidates, study.evaluations["nominal"], robot,
+                                progress=config.train.optimizer.progress)
+    missed = {name: a for name, a in accuracy.items() if not a.met}
+    if missed:
+        name, a = max(missed.items(), key=lambda kv: float(np.max(kv[1].errors["dwell_residual_mm"] / kv[1].tolerance_mm)))
+        k = int(np.argmax(a.errors["dwell_residual_mm"] / a.tolerance_mm))
+        warnings.warn(f"the study's grid misses the accuracy asked for: the estimated error of {name}'s nominal dwell "
+                      f"residual is {1e3 * float(a.errors['dwell_residual_mm'][k]):.3g} um at {payloads[k]:g} kg, above "
+                      f"its tolerance {1e3 * float(a.tolerance_mm[k]):.3g} um (the larger of 0.5 % of it and 1 nm, "
+                      "docs/conventions.md#accuracy)", StepWarning, stacklevel=2)
     figures = 2 + ("box" in study.sets)
     bar = stage("study record and outputs", total=1 + (1 + figures if out else 0), unit="part")
     rec = {"payloads": list(study.payloads), "tf": tf, "blend": study.blend, "best_paper": study.best_paper,
            "train": study.train, "design": design_record(study),
-           "laws": summary(study), "torque_bound_nm": study.torque_bound.tolist(),
+           "laws": summary(study, accuracy), "accuracy": accuracy_summary(accuracy),
+           "torque_bound_nm": study.torque_bound.tolist(),
            "ruckig_limits": study.ruckig_limits, "first_mode_hz": list(study.first_mode_hz),
            "model_sets": {k: [i.label for i in v] for k, v in study.sets.items()},
            "history": [list(h) for h in study.result.history], "steps_run": study.result.steps_run,

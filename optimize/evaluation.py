@@ -161,3 +161,52 @@ def _paper_evaluations(cancelled, problem: Problem, config, path, candidates):
         evaluations[k] = dict(zip(candidates, ev.metrics_many([cand.law for cand in candidates.values()])))
         evaluators[k] = {"paper": ev} if keep else {}
     return sets, grids, evaluators, evaluations
+
+
+def nominal_accuracy(evaluators: dict, candidates: dict, evaluations: dict, robot, *, progress: bool = False):
+    """The discretization error of every candidate's metrics on the nominal models
+    (docs/conventions.md#accuracy): the same candidates along the same paths on the coarser grid
+    (``jaxflex.accuracy.coarser_grid``, step doubling). ``evaluators``: path name -> the nominal
+    models' ``LawEvaluator``; ``candidates``: name -> ``Candidate``; ``evaluations``: name -> their
+    metrics there; ``robot`` sets the exponential's squarings for the longer steps. Returns name ->
+    ``jaxflex.accuracy.Accuracy`` (arrays over the nominal models). A sampled law (Ruckig's, sampled
+    on the study's grid) is sampled again on the coarser one. Where a candidate's estimate misses the
+    tolerance (a comparison outside the asymptotic range can overestimate the error), its path's
+    candidates are compared with every step halved instead (``accuracy.estimated_by_halving``:
+    2 |m - m_finer|, 1.5 times the error of a second-order method), the results staying the grid's."""
+    from jaxflex.accuracy import coarser_grid, estimate, estimated_by_halving
+    from jaxflex.simulate import MotionSamples
+    from jaxflex.sweep import grid_step, step_squarings
+
+    from .baselines import ruckig_samples
+
+    ev0 = next(iter(evaluators.values()))
+    grid, tf, dwell = ev0.grid, float(ev0.tf), float(ev0.dwell)
+    coarser = coarser_grid(grid, step_squarings(robot, 2 * grid_step(grid, tf, dwell)))
+    if coarser is None:
+        raise ValueError(f"the grid {tuple(grid)[:3]} has no coarser grid to estimate its error with")
+    coarse, ratio = coarser
+    out = {}
+    bar = Progress("error estimate of the nominal evaluations", total=len(evaluators), unit="path", enabled=progress)
+    with bar:
+        for key, ev in evaluators.items():
+            names = [n for n, c in candidates.items() if c.path == key]
+            if not names:
+                continue
+            def on(g, what):
+                laws = [ruckig_samples(float(ev.path.length), tf, g)[0] if isinstance(candidates[n].law, MotionSamples)
+                        else candidates[n].law for n in names]
+                with bar.waiting(f"{key} path on {what} (compiling unless cached)"):
+                    return LawEvaluator(ev.models, ev.path, tf, dwell, g).metrics_many(laws)
+
+            ours = [{k: np.asarray(v) for k, v in evaluations[n].items()} for n in names]
+            accs = [estimate(m, {k: np.asarray(c[k]) for k in m}, grid, coarse, ratio)
+                    for m, c in zip(ours, on(coarse, f"a grid {ratio:.2g}x coarser"))]
+            if not all(a.met for a in accs):
+                finer = {}
+                halved = lambda g: finer.setdefault(g, on(g, "a grid with every step halved"))
+                accs = [a if a.met else estimated_by_halving(lambda g, i=i: halved(g)[i], grid, m)[0]
+                        for i, (a, m) in enumerate(zip(accs, ours))]
+            out.update(zip(names, accs))
+            bar.update(note=key)
+    return out

@@ -195,6 +195,20 @@ def test_optimize_command_writes_its_outputs_and_resumes(tmp_path, capsys):
         assert len(v["richer_mm"]) == 1 and v["richer_mm"][0] > 0
         assert all(x > 0 and math.isfinite(x) for x in v["dwell_residual_mm"] + v["perturbed_mm"])
     assert all(math.isfinite(x) for x in _finite_numbers(rec))
+    # every nominal result carries its error estimate (docs/conventions.md#accuracy): the best paper
+    # combination's is the sweep's for that combination on the same grid (the same comparison), and
+    # each law's tolerance is the larger of 0.5 % of its residual and 1 nm
+    from jaxflex.sweep import Case, SweepConfig, run_sweep
+    acc = rec["accuracy"]
+    assert acc["ratio"] == 2.0 and acc["compared_with"]["coarse"] * 2 == rec["grid"]["coarse"]
+    for v in laws.values():
+        assert v["error_estimate_ratio"] in (2.0, 0.5) and v["error_estimate"]["dwell_residual_mm"][0] >= 0
+        assert v["dwell_residual_tolerance_mm"][0] == pytest.approx(max(5e-3 * v["dwell_residual_mm"][0], 1e-6))
+    best = next(k for k in laws if k.endswith("(best paper)"))
+    res = run_sweep(robot_preset("default"), cycle_preset(), (Case(6.0, 0.43),), SweepConfig(dwell=0.1, timed=False))
+    i, j = res.blends.index(rec["blend"]), res.profiles.index(rec["best_paper"])
+    assert laws[best]["error_estimate"]["dwell_residual_mm"][0] == pytest.approx(
+        float(res.accuracy.errors["dwell_residual_mm"][i, j, 0]), rel=1e-9)
     head, rows = _read_csv(out_dir / "trajectory.csv")
     assert head == ["t", "x", "y", "q1", "q2", "dq1", "dq2", "ddq1", "ddq2", "tau1", "tau2"]
     assert rows.shape == (4301, 11)
