@@ -282,34 +282,36 @@ def _march(carry: Carry, maps: _Maps, steps: _Steps, servo: Servo, unroll: int):
     """The fine steps of every interval (leaves of ``maps`` (Nc, ...), of ``steps`` (Nc, m, ...)):
     returns the final carry and, per step, the state and the applied torque at its start."""
     period = 1.0 / servo.rate
-    # the four node tables side by side (Nc, P + 1, R): one slice and one weighted sum per step
-    tables = (maps.ru, maps.rv1, maps.rv2, maps.gs)
-    shapes = [t.shape[2:] for t in tables]
-    bounds = np.cumsum([0] + [int(np.prod(sh)) for sh in shapes])
-    nodes = jnp.concatenate([t.reshape(t.shape[:2] + (-1,)) for t in tables], axis=2)
+    nc, p1 = maps.ru.shape[:2]
+    n2 = maps.ru.shape[-1]
+    # per node, the rows [d, d'] of the maps on [x, force, force change] side by side, then the held
+    # torque's response: one slice and one weighted sum per step give both
+    rows = jnp.concatenate([maps.ru, maps.rv1, maps.rv2], axis=3)
+    width = rows.shape[3]
+    nodes = jnp.concatenate([rows.reshape(nc, p1, -1), maps.gs.reshape(nc, p1, -1)], axis=2)
+    split = 4 * width
+    step_map = jnp.concatenate([maps.phi, maps.p1[:, :, :2]], axis=2)          # [Phi | P1 S] on [x, u]
 
     def interval(c, inp):
-        mp, st, tab = inp
-        p1u = mp.p1[:, :2]
+        big, st, tab = inp
 
         def step(c, s):
             flat = s.weights @ jax.lax.dynamic_slice_in_dim(tab, s.start, DEGREE + 1)
-            ru, rv1, rv2, gs = (flat[lo:hi].reshape(sh) for lo, hi, sh in zip(bounds[:-1], bounds[1:], shapes))
-            force = s.f0.at[:2].add(c.u)
-            at = ru @ c.x + rv1 @ force + rv2 @ s.df                        # [d, d'] at the sample
+            r, gs = flat[:split].reshape(4, width), flat[split:].reshape(n2, 2)
+            at = r @ jnp.concatenate([c.x, s.f0.at[:2].add(c.u), s.df])      # [d, d'] at the sample
             new = s.ff - servo.kp * at[:2] - servo.kd * at[2:] + servo.ki * c.integral
             new = jnp.clip(new, -servo.torque_limit, servo.torque_limit)
             applied = c.pending if servo.delay else new
             has = s.has > 0
             applied = jnp.where(has, applied, c.u)
-            x_next = mp.phi @ c.x + s.b + p1u @ c.u + gs @ (applied - c.u)
+            x_next = big @ jnp.concatenate([c.x, c.u]) + s.b + gs @ (applied - c.u)
             nxt = Carry(x_next, applied, jnp.where(has, new, c.pending),
                         jnp.where(has, c.integral - period * at[:2], c.integral))
             return nxt, (c.x, c.u)
 
         return jax.lax.scan(step, c, st, unroll=unroll)
 
-    return jax.lax.scan(interval, carry, (maps, steps, nodes))
+    return jax.lax.scan(interval, carry, (step_map, steps, nodes))
 
 
 def _node_coeffs(tables: Tables, servo_tables: Tables, s):
