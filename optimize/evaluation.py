@@ -193,6 +193,7 @@ def nominal_accuracy(evaluators: dict, candidates: dict, evaluations: dict, robo
             names = [n for n, c in candidates.items() if c.path == key]
             if not names:
                 continue
+
             def on(g, what):
                 laws = [ruckig_samples(float(ev.path.length), tf, g)[0] if isinstance(candidates[n].law, MotionSamples)
                         else candidates[n].law for n in names]
@@ -204,7 +205,12 @@ def nominal_accuracy(evaluators: dict, candidates: dict, evaluations: dict, robo
                     for m, c in zip(ours, on(coarse, f"a grid {ratio:.2g}x coarser"))]
             if not all(a.met for a in accs):
                 finer = {}
-                halved = lambda g: finer.setdefault(g, on(g, "a grid with every step halved"))
+
+                def halved(g):          # the path's candidates on the finer grid, run once for all of them
+                    if g not in finer:
+                        finer[g] = on(g, "a grid with every step halved")
+                    return finer[g]
+
                 accs = [a if a.met else estimated_by_halving(lambda g, i=i: halved(g)[i], grid, m)[0]
                         for i, (a, m) in enumerate(zip(accs, ours))]
             out.update(zip(names, accs))
