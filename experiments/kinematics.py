@@ -167,7 +167,7 @@ def tables_markdown(res: dict) -> str:
                 row += cells(res[key][b][p], pap[key][b][p] if pap else None)
             if key == "joint_acc_max":
                 fd = res["joint_acc_max_fd_1ms"]["lame"][p]
-                row += cells(fd, pap[key]["lame"][p] if pap else None)[::2] if pap else [fmt(fd)]
+                row += [fmt(fd)] + ([pct(rel_diff(fd, pap[key]["lame"][p]))] if pap else [])
             rows.append(row)
         headers = ["profile"] + ([f"{b} {c}" for b in BLENDS for c in cols] if pap else list(BLENDS))
         if key == "joint_acc_max":
