@@ -10,7 +10,8 @@ import sys
 import traceback
 
 from jaxflex.names import DESIGN_BLENDS, PRESETS
-from jaxflex.optimize.config import ROBUST_POWER, SCENARIO_POOL, SCENARIOS, TRAINING_SETS, StudyConfig
+from jaxflex.optimize.config import (ROBUST_POWER, SCENARIO_POOL, SCENARIOS, SERVO_LEARNING_RATE, SERVO_TRAININGS,
+                                     TRAINING_SETS, StudyConfig)
 from jaxflex.uncertainty import Box
 
 STUDY = StudyConfig()       # the defaults of ``jaxflex optimize`` (this module imports no JAX)
@@ -215,7 +216,7 @@ def build_parser() -> argparse.ArgumentParser:
                      "the servo in the loop (the feedforward given to the design: --feedforward, default "
                      "flexible; the paper's combinations and the baselines get the rigid one) and compare "
                      "them at FC and the --servo-fcs bandwidths on the nominal model and the boxes of "
-                     "the robot and the controller (fc +-20 %%, rate 4-16 kHz, rotor +-10 %%); "
+                     "the robot and the controller (fc +-20 %, rate 4-16 kHz, rotor +-10 %); "
                      "docs/conventions.md#servo")
     g.add_argument("--servo-steps", type=int, default=20, metavar="N",
                    help="optimizer steps with the servo in the loop (0: the perfect controller's design "
@@ -223,7 +224,19 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--servo-scenarios", type=int, default=SCENARIOS, metavar="N",
                    help="models added to the refinement's training set: those on which the design does worst "
                         f"among {SCENARIO_POOL} random models of both boxes (apart from the evaluation's) and the 32 "
-                        "corners (0: the nine fixed training models only; default: %(default)s)")
+                        "corners (0: the fixed training models only, --servo-training; default: %(default)s)")
+    g.add_argument("--servo-training", choices=SERVO_TRAININGS, default="fixed",
+                   help="the refinement's fixed training models: 'fixed', the nominal model and eight corners "
+                        "of the boxes; 'corners', the nominal model and all 32 corners (about four times the "
+                        "rollouts per step; default: %(default)s)")
+    g.add_argument("--servo-power", type=float, default=ROBUST_POWER, metavar="P",
+                   help="order of the power mean over the training models (larger: closer to the worst "
+                        "model; default: %(default)s)")
+    g.add_argument("--servo-lr", type=float, default=SERVO_LEARNING_RATE, metavar="LR",
+                   help="Adam learning rate of the refinement (default: %(default)s)")
+    g.add_argument("--servo-rounds", type=int, default=1, metavar="N",
+                   help="refinements in a row, each from the last one's design with its scenarios picked "
+                        "again (default: %(default)s)")
     g.add_argument("--servo-samples", type=int, default=200, metavar="N",
                    help="random models of both boxes each trajectory is evaluated on under the servo "
                         "(default: %(default)s)")
@@ -341,7 +354,9 @@ def main(argv=None) -> int:
                 if options is not None:
                     closed = {**options, "steps": args.servo_steps, "samples": args.servo_samples,
                               "fcs": tuple(args.servo_fcs), "corners": args.servo_corners,
-                              "scenarios": args.servo_scenarios}
+                              "scenarios": args.servo_scenarios, "training": args.servo_training,
+                              "power": args.servo_power, "learning_rate": args.servo_lr,
+                              "rounds": args.servo_rounds}
                 optimize.run(setup, tuple(payloads), args.tf, out=args.out, json_path=args.json,
                              verify=args.verify, config=dataclasses.replace(config, free_path=args.free_path),
                              export_rate=args.export_rate, closed_loop=closed)

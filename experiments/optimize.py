@@ -18,7 +18,7 @@ import numpy as np
 
 from jaxflex import checks
 from jaxflex.model_sets import build_model
-from jaxflex.optimize.config import StudyConfig
+from jaxflex.optimize.config import SERVO_TRAININGS, StudyConfig
 from jaxflex.optimize.evaluation import nominal_accuracy
 from jaxflex.export import DEFAULT_RATE_HZ as CSV_RATE_HZ, write_controller_files
 from jaxflex.optimize.cycle_time import TORQUE_TOL
@@ -343,7 +343,7 @@ def closed_loop_section(study, robot, cycle, payload: float, tf: float, options:
     (its record, (path, law, servo) of the trajectory to export)."""
     from jaxflex.designs import design_path
     from jaxflex.optimize.closed_loop import Controller, closed_loop_study
-    from jaxflex.optimize.config import SCENARIOS
+    from jaxflex.optimize.config import ROBUST_POWER, SCENARIOS, SERVO_LEARNING_RATE
     from jaxflex.profiles import shaped
     from jaxflex.runtime.compiled import run_isolated_uncached
     from jaxflex.servo import cycle_servo
@@ -361,7 +361,11 @@ def closed_loop_section(study, robot, cycle, payload: float, tf: float, options:
                        study.candidates["optimized"].law, controller, fcs=options["fcs"], steps=options["steps"],
                        samples=options["samples"], corners=options["corners"], box=config.box,
                        blend=config.train.blend, order=order, first_mode_hz=study.first_mode_hz[0],
-                       ruckig=config.ruckig, scenarios=options.get("scenarios", SCENARIOS), progress=True)
+                       ruckig=config.ruckig, scenarios=options.get("scenarios", SCENARIOS),
+                       training=options.get("training", "fixed"), power=options.get("power", ROBUST_POWER),
+                       rounds=options.get("rounds", 1),
+                       learning_rate=options.get("learning_rate", SERVO_LEARNING_RATE),
+                       progress=True)
     path, law = study.paths["optimized"], study.candidates["optimized"].law
     if "refined" in rec:
         x = corners_design(rec["refined"]["design"])
@@ -381,9 +385,13 @@ def closed_loop_text(rec: dict) -> str:
              f"{rec['samples']} random models{' and 32 corners' if rec['corners'] else ''} of the robot's and the "
              "controller's boxes):"]
     if "refined" in rec:
-        h = rec["refined"]["history"]
-        parts.append(f"refined with the servo in the loop at fc {c['fc']:g} Hz: {rec['refined']['steps_run']} steps, "
-                     f"objective {h[0][1]:.3f} -> {min(r[1] for r in h):.3f}")
+        ref = rec["refined"]
+        for k, rnd in enumerate(ref.get("rounds", [ref])):
+            h = rnd["history"]
+            which = f", round {k + 1}" if len(ref.get("rounds", ())) > 1 else ""
+            models = f" on {len(rnd['training_models'])} models" if rnd.get("training_models") else ""
+            parts.append(f"refined with the servo in the loop at fc {c['fc']:g} Hz{which}: {rnd['steps_run']} steps"
+                         f"{models}, objective {h[0][1]:.3f} -> {min(r[1] for r in h):.3f}")
     head = ["trajectory", "perfect [um]", "nominal [um]", "box worst [um]", "box p95 [um]", "x best paper (nominal)",
             "x best paper (worst)", "torque [N m]"]
     for fc, rows in rec["fcs"].items():
@@ -409,14 +417,20 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, out=None, verify=False, 
     started = time.time()
     if closed_loop is not None:          # before the perfect controller's study: a bad count fails now
         extra = sorted(set(closed_loop) - {"fc", "rate", "rotor_inertia", "feedforward", "steps", "samples", "fcs",
-                                           "corners", "scenarios"})
+                                           "corners", "scenarios", "training", "power", "rounds", "learning_rate"})
         if extra:
             raise ValueError(f"the closed-loop study sets up its controller by the default gain rule from fc, the "
                              f"rate, the rotor inertia and the feedforward kind; it does not take {', '.join(extra)} "
                              "(from the robot file's [servo] table): remove them, or use jaxflex sweep")
-        for name in ("steps", "samples", "scenarios"):
+        for name in ("steps", "samples", "scenarios", "rounds"):
             if name in closed_loop:
-                checks.count(f"servo {name}", closed_loop[name], minimum=0)
+                checks.count(f"servo {name}", closed_loop[name], minimum=int(name == "rounds"))
+        for name in ("power", "learning_rate"):
+            if name in closed_loop:
+                checks.positive(f"servo {name.replace('_', ' ')}", closed_loop[name])
+        if closed_loop.get("training", "fixed") not in SERVO_TRAININGS:
+            raise ValueError(f"servo training must be one of {', '.join(SERVO_TRAININGS)}, "
+                             f"got {closed_loop['training']!r}")
     robot, cycle = robot_and_cycle(preset)
     ckpt = None
     if out:

@@ -36,7 +36,7 @@ from jaxflex.servo import Servo, cycle_servo, feedforward_advance, with_rotor
 from jaxflex.simulate import Grid
 from jaxflex.uncertainty import Box, ModelId
 
-from .config import SCENARIO_POOL, SCENARIOS
+from .config import ROBUST_POWER, SCENARIO_POOL, SCENARIOS, SERVO_LEARNING_RATE, SERVO_TRAININGS
 
 DEFAULT_RATE_HZ = 8000.0
 SCENARIO_SEED = 1000        # the refinement's scenario pool: random models apart from the evaluation's (seed 0)
@@ -217,6 +217,18 @@ def train_models(payload: float, box: Box, servo_box: ServoBox) -> tuple:
     return tuple(out)
 
 
+def training_models(payload: float, box: Box, servo_box: ServoBox, training: str = "fixed") -> tuple:
+    """The refinement's fixed training models, the nominal one first: ``"fixed"`` the nine of
+    ``train_models``; ``"corners"`` all 32 corners of both boxes (``corner_models``, 33 models: the
+    box's worst case is a corner more often than not, and a design trained on a few of them trades
+    the others away; every step then runs about four times as many rollouts)."""
+    if training == "fixed":
+        return train_models(payload, box, servo_box)
+    if training == "corners":
+        return (ServoModel(ModelId(float(payload))),) + corner_models(payload, box, servo_box)
+    raise ValueError(f"training must be one of {', '.join(SERVO_TRAININGS)}, got {training!r}")
+
+
 def worst_models(residual, which: Sequence[ServoModel], k: int, exclude: Sequence[ServoModel] = ()) -> tuple:
     """The ``k`` models of ``which`` with the largest residuals (``residual``: one value per model,
     NaN for an unstable loop, left out), largest first, skipping those in ``exclude``."""
@@ -315,12 +327,14 @@ def _perfect(path: Path, law, robot: Robot, payload: float, tf: float, dwell: fl
 
 def refine(x0, robot: Robot, cycle: Cycle, payload: float, tf: float, dwell: float, grid: Grid,
            controller: Controller, reference: dict, torque_bound: float, *, steps: int = 20,
-           learning_rate: float = 0.05, box: Box = Box(), servo_box: ServoBox = ServoBox(), blend: str = "smoothstep",
+           learning_rate: float = SERVO_LEARNING_RATE, box: Box = Box(), servo_box: ServoBox = ServoBox(),
+           blend: str = "smoothstep",
            order: int = 3, scenarios: int = SCENARIOS, pool: int = SCENARIO_POOL, pool_seed: int = SCENARIO_SEED,
-           progress: bool = False):
-    """The design x0 refined with the servo in the loop: Adam on ``closed_loop_objective`` over
-    ``train_models`` (the nominal model and eight corners of E, payload with the rotor, bandwidth and
-    rate) and ``scenarios`` more: the models on which x0 does worst among ``pool`` random models
+           training: str = "fixed", power: float = ROBUST_POWER, progress: bool = False):
+    """The design x0 refined with the servo in the loop: Adam on ``closed_loop_objective`` (the power
+    mean of order ``power`` over the models: larger is closer to the worst model) over
+    ``training_models`` (``training``: "fixed", the nominal model and eight corners of E, payload
+    with the rotor, bandwidth and rate; "corners", all 32) and ``scenarios`` more: the models on which x0 does worst among ``pool`` random models
     of both boxes (drawn with ``pool_seed``, apart from the evaluation's) and the 32 corners (a
     scenario set for the worst case: the fixed corners miss the box's worst combinations, e.g. a
     rotor error at 0.1 kg), at the controller's bandwidth, the gradient through the closed-loop
@@ -335,7 +349,8 @@ def refine(x0, robot: Robot, cycle: Cycle, payload: float, tf: float, dwell: flo
     from .objective import decode
 
     scenarios = checks.count("scenarios", scenarios, minimum=0)
-    which = train_models(payload, box, servo_box)
+    power = checks.positive("power", power)
+    which = training_models(payload, box, servo_box, training)
     if scenarios:
         candidates = random_models(payload, box, servo_box, checks.count("pool", pool, minimum=0),
                                    pool_seed)[1:] + corner_models(payload, box, servo_box)
@@ -345,7 +360,8 @@ def refine(x0, robot: Robot, cycle: Cycle, payload: float, tf: float, dwell: flo
         which = which + worst_models(met["dwell_residual_mm"], candidates, scenarios, exclude=which)
     objective, p0, which = closed_loop_objective(x0, robot.replace(payload=payload), cycle, tf, dwell, grid, controller.fc,
                                           which, reference, torque_bound, feedforward=controller.feedforward,
-                                          rate=controller.rate, rotor=controller.rotor, blend=blend, order=order)
+                                          rate=controller.rate, rotor=controller.rotor, blend=blend, order=order,
+                                          power=power)
     config = OptimizerConfig(steps=steps, learning_rate=learning_rate, patience=max(steps, 1), progress=progress,
                              label=f"closed loop fc={controller.fc:g}")
     result = minimize(objective, p0, (), config, gradient=OneProgram(build="quick"))
@@ -356,14 +372,19 @@ def closed_loop_study(robot: Robot, cycle: Cycle, payload: float, tf: float, dwe
                       law, controller: Controller, *, fcs: Sequence[float] = (15.0, 40.0), steps: int = 0,
                       samples: int = 200, corners: bool = True, box: Box = Box(), servo_box: ServoBox = ServoBox(),
                       blend: str = "smoothstep", order: int = 3, first_mode_hz: float | None = None,
-                      ruckig: bool = True, learning_rate: float = 0.05, seed: int = 0, scenarios: int = SCENARIOS,
+                      ruckig: bool = True, learning_rate: float = SERVO_LEARNING_RATE, seed: int = 0,
+                      scenarios: int = SCENARIOS,
+                      training: str = "fixed", power: float = ROBUST_POWER, rounds: int = 1,
                       progress: bool = False) -> dict:
     """The designs under the servo (module docstring), as a JSON-ready record.
 
     ``design`` (a ``Design`` of the ``blend`` family) with its shaped ``law`` is the perfect
     controller's optimized design. With ``steps`` > 0 it is first refined with the servo in the loop
     at ``controller.fc`` (``refine``: the closed-loop residual in units of the best paper
-    combination's under the same servo, the peak torque bounded by poly7-Lamé's). At every
+    combination's under the same servo, the peak torque bounded by poly7-Lamé's; ``training``,
+    ``power``, ``scenarios`` and ``learning_rate`` as ``refine`` takes them), ``rounds`` times in a
+    row: each round starts from the last one's design and picks its scenarios again, on the models
+    where that design does worst. At every
     bandwidth of ``fcs`` and the controller's, the 12 paper combinations are run under the servo
     (rigid feedforward) on the nominal robot; the best of them, its ZV/ZVD versions (first mode
     ``first_mode_hz``), the Ruckig profile on its path and poly7-Lamé (rigid feedforward), and the
@@ -379,6 +400,9 @@ def closed_loop_study(robot: Robot, cycle: Cycle, payload: float, tf: float, dwe
     from .baselines import ruckig_samples, shaper_profiles
 
     started = time.time()
+    rounds = checks.count("rounds", rounds, minimum=1)
+    training_models(payload, box, servo_box, training)          # a bad choice fails before the sweeps
+    power = checks.positive("power", power)
     fc_all = sorted(set(float(f) for f in fcs) | {float(controller.fc)})
     nominal_robot = robot.replace(payload=payload)
     sweeps = {fc: paper_under_servo(robot, cycle, payload, tf, dwell, fc, controller, progress) for fc in fc_all}
@@ -395,12 +419,19 @@ def closed_loop_study(robot: Robot, cycle: Cycle, payload: float, tf: float, dwe
         i, j = blends.index(best[0]), profiles.index(best[1])
         reference = {k: m[k][i, j] for k in ("residual_energy", "dwell_residual_mm")}
         bound = float(m["max_torque_nm"][blends.index("lame"), profiles.index("poly7")])
-        x, result, trained = refine(design, robot, cycle, payload, tf, dwell, grid, controller, reference, bound,
-                                    steps=steps, learning_rate=learning_rate, box=box, servo_box=servo_box, blend=blend,
-                                    order=order, scenarios=scenarios, progress=progress)
+        done = []
+        for r in range(rounds):
+            if progress and rounds > 1:
+                print(f"closed-loop refinement, round {r + 1} of {rounds}", flush=True)
+            x, result, trained = refine(x, robot, cycle, payload, tf, dwell, grid, controller, reference, bound,
+                                        steps=steps, learning_rate=learning_rate, box=box, servo_box=servo_box,
+                                        blend=blend, order=order, scenarios=scenarios, training=training, power=power,
+                                        progress=progress)
+            done.append({"history": [list(map(float, h)) for h in result.history], "steps_run": result.steps_run,
+                         "training_models": [w.label for w in trained]})
         law = shaped(jnp.asarray(x.coef), order, name="optimized")
-        rec["refined"] = {"history": [list(map(float, h)) for h in result.history], "steps_run": result.steps_run,
-                          "training_models": [w.label for w in trained],
+        rec["refined"] = {**done[-1], "rounds": done, "training": training, "power": power,
+                          "learning_rate": learning_rate, "scenarios": scenarios,
                           "torque_bound_nm": bound, "design": {"corners": [
                               {"d_m": float(x.d[k]), "e_m": float(x.e[k]), "n": float(x.n[k])} for k in range(2)],
                               "coef": np.asarray(x.coef).tolist()}}

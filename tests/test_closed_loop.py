@@ -132,3 +132,47 @@ def test_the_closed_loop_report_and_figure_render_a_study_record(tmp_path):
     assert len(fig.axes[0].get_lines()) == 4          # two trajectories, each with its perfect-controller line
     fig.savefig(tmp_path / "f.png")
     assert (tmp_path / "f.png").stat().st_size > 1000
+
+
+def test_the_refinements_training_sets_and_its_rounds_chain_the_designs(monkeypatch):
+    """``training``: "fixed" is the nine models of ``train_models``, "corners" the nominal model and
+    all 32 corners; anything else is refused before any rollout. ``rounds``: each refinement starts
+    from the design the last one returned, with the settings given, and the record keeps every
+    round (the study's rollouts are replaced here by stand-ins: what is checked is the chaining)."""
+    fixed = cl.training_models(6.0, Box(), cl.ServoBox(), "fixed")
+    assert fixed == cl.train_models(6.0, Box(), cl.ServoBox())
+    every = cl.training_models(6.0, Box(), cl.ServoBox(), "corners")
+    assert every[0] == cl.ServoModel(ModelId(6.0)) and len(set(every)) == 33
+    assert set(every[1:]) == set(cl.corner_models(6.0, Box(), cl.ServoBox())) >= set(fixed[1:])
+    with pytest.raises(ValueError, match="training must be one of fixed, corners"):
+        cl.training_models(6.0, Box(), cl.ServoBox(), "all")
+
+    robot = robot_preset("default")
+    blends, profiles = ["lame", "polar"], ["poly7"]
+    metrics = {"dwell_residual_mm": np.array([[2e-3], [1e-3]]), "residual_energy": np.ones((2, 1)),
+               "max_torque_nm": np.array([[80.0], [70.0]])}
+    monkeypatch.setattr(cl, "paper_under_servo", lambda *a, **k: (metrics, blends, profiles, ("polar", "poly7")))
+    calls = []
+
+    def fake_refine(x, *a, **k):
+        calls.append((np.asarray(x.coef).copy(), k["training"], k["power"], k["learning_rate"]))
+        x2 = x._replace(coef=np.asarray(x.coef) + 1.0)
+        return x2, type("R", (), {"history": [(0, 1.0), (1, 0.5)], "steps_run": 1})(), fixed[:2]
+
+    monkeypatch.setattr(cl, "refine", fake_refine)
+    flat = {"dwell_residual_mm": np.array([1e-3]), "max_torque_nm": np.array([70.0])}
+    monkeypatch.setattr(cl, "evaluate", lambda trs, *a, **k: {name: flat for name in trs})
+    monkeypatch.setattr(cl, "_perfect", lambda *a, **k: flat)
+    x0 = design(0.02, 0.05, 3.0, np.ones(6), d2=0.02, e2=0.05, n2=3.0)
+    law = shaped(np.ones(6), 3)
+    rec = cl.closed_loop_study(robot, CYCLE, 6.0, 0.43, 0.1, default_grid(robot, [0.43], 0.1), x0, law,
+                               cl.Controller(15.0), fcs=(), steps=1, samples=0, corners=False, ruckig=False,
+                               training="corners", power=16.0, learning_rate=0.02, rounds=3)
+    assert [c[0][0] for c in calls] == [1.0, 2.0, 3.0]           # each round from the last one's design
+    assert all(c[1:] == ("corners", 16.0, 0.02) for c in calls)
+    assert len(rec["refined"]["rounds"]) == 3 and rec["refined"]["design"]["coef"][0] == 4.0
+    assert rec["refined"]["training"] == "corners" and rec["refined"]["power"] == 16.0
+    for bad, match in (({"rounds": 0}, "rounds"), ({"power": 0.0}, "power"), ({"training": "box"}, "training")):
+        with pytest.raises(ValueError, match=match):
+            cl.closed_loop_study(robot, CYCLE, 6.0, 0.43, 0.1, default_grid(robot, [0.43], 0.1), x0, law,
+                                 cl.Controller(15.0), fcs=(), steps=1, **bad)
