@@ -53,7 +53,7 @@ from jaxflex.servo_linearized import build_servo_tables
 from jaxflex.servo_simulate import Schedule, closed_loop, feedforward_torques, servo_schedule
 from jaxflex.simulate import (Grid, MotionSamples, Prepared, Series, Sites, add_remainders, first_pass,
                               motion_samples, prepare, remainders, second_pass)
-from jaxflex.workspace import Workspace, workspace_tables
+from jaxflex.workspace import Workspace, has_servo, workspace_servo_tables, workspace_tables
 
 _static = dict(metadata=dict(static=True))
 
@@ -66,9 +66,10 @@ class RolloutModel:
     robot: the model simulated (its tables come from it); tf [s] the motion time; dwell [s] the time
     simulated after it; cycle and workspace: where the path stage builds a design's path and its
     tables (workspace None: the tables from the model, ``linearized.build_tables``; else
-    interpolated from the robot's workspace tables, ``jaxflex.workspace``); only the path stage reads
-    them. ``servo``: the servo loop driving the motors (None: the perfect controller, the motor
-    angles prescribed); ``robot`` then carries the servo's rotor (``servo.with_rotor``). Static (part
+    interpolated from the robot's workspace tables, ``jaxflex.workspace``, and so are the servo
+    tables if it holds them); only the path and servo-tables stages read them. ``servo``: the servo
+    loop driving the motors (None: the perfect controller, the motor angles prescribed); ``robot``
+    then carries the servo's rotor (``servo.with_rotor``). Static (part
     of the compiled program's identity): the ``grid``; ``second_order`` (the full model's
     second-order remainder is added; False: the linearized model); the design's ``blend`` family and
     the shaped law's end-factor ``order`` (path stage)."""
@@ -125,10 +126,17 @@ def path_stage(model: RolloutModel, state: RolloutState) -> RolloutState:
 
 
 def servo_tables_stage(model: RolloutModel, state: RolloutState) -> RolloutState:
-    """The design path's servo tables (``servo_linearized.build_servo_tables``, from the model) and
-    the servo's sample schedule on the grid (``servo_simulate.servo_schedule``)."""
+    """The design path's servo tables and the servo's sample schedule on the grid
+    (``servo_simulate.servo_schedule``). The tables are interpolated from the model's workspace when
+    it tabulates them (``workspace.has_servo``: cheap to differentiate and to compile, within the
+    workspace's interpolation error), else built from the model
+    (``servo_linearized.build_servo_tables``)."""
     path = design_path(model.cycle, state.design, model.blend)
-    return state._replace(servo_tables=build_servo_tables(model.robot, path),
+    if model.workspace is not None and has_servo(model.workspace):
+        servo_tables = workspace_servo_tables(model.workspace, model.robot, path)
+    else:
+        servo_tables = build_servo_tables(model.robot, path)
+    return state._replace(servo_tables=servo_tables,
                           schedule=servo_schedule(model.tf, model.dwell, model.grid, model.servo.period))
 
 

@@ -26,7 +26,7 @@ from jaxflex.runtime.memo import ContentMemo
 from jaxflex.runtime.options import BUILD
 from jaxflex.runtime.threads import host_map
 from jaxflex.servo_linearized import servo_coeffs_at
-from jaxflex.workspace import PROBES, FIELDS, Workspace, combine_probes, grid_points, grid_shape
+from jaxflex.workspace import PROBES, FIELDS, SERVO_FIELDS, Workspace, combine_probes, grid_points, grid_shape
 
 COEFF_CHUNK = sum(SEGMENT_NODES)   # poses per call of the shared coefficient program: one path table
                                    # is one call, larger sets (sweeps, workspaces) a few (padding costs)
@@ -94,9 +94,10 @@ def path_tables(robot: Robot, path: Path, *, remember: bool = True) -> Tables:
     return Tables(values=coeffs_many(robot, *robot_table_poses(robot, path), remember=remember), breaks=path.breaks)
 
 
-def _workspaces(robot: Robot, singles: list, cycle: Cycle, spacing: float, stacked: bool) -> Workspace:
+def _workspaces(robot: Robot, singles: list, cycle: Cycle, spacing: float, stacked: bool,
+                servo: bool = False) -> Workspace:
     """The workspace tables of ``robot`` (one, or a stack of them with ``stacked``), whose single
-    robots are ``singles``."""
+    robots are ``singles``; with ``servo`` the servo coefficients' too."""
     shape = grid_shape(cycle, spacing)
     nu, nv = shape
     pts = np.asarray(grid_points(cycle, shape)).reshape(-1, 2)
@@ -111,6 +112,12 @@ def _workspaces(robot: Robot, singles: list, cycle: Cycle, spacing: float, stack
     lead = (len(singles),) if stacked else ()
     ev = {k: v.reshape((-1, p) + v.shape[len(lead) + 1:]) for k, v in ev._asdict().items() if k in FIELDS}
     values = {k: v.reshape(lead + (nu, nv) + v.shape[1:]) for k, v in _combine_all(ev).items()}
+    if servo:
+        per = [_servo_many(r, np.repeat(q, p, axis=0), probes[:, :2], probes[:, 2:]) for r, q in zip(singles, qa)]
+        sv = {k: np.stack([np.asarray(d[k]) for d in per]) for k in SERVO_FIELDS}          # (K, N * 5, ...)
+        sv = {k: v.reshape((-1, p) + v.shape[2:]) for k, v in sv.items()}
+        combined = {k: v.reshape((len(singles), nu, nv) + v.shape[1:]) for k, v in _combine_all(sv).items()}
+        values.update({k: v if stacked else v[0] for k, v in combined.items()})
     step = jnp.stack([cycle.l / (nu - 1), cycle.h / (nv - 1)])
     ws = Workspace(values=values, origin=jnp.asarray(cycle.pick, dtype=float), axes=jnp.asarray(cycle.basis), step=step)
     if not stacked:
@@ -120,19 +127,32 @@ def _workspaces(robot: Robot, singles: list, cycle: Cycle, spacing: float, stack
                        step=jnp.broadcast_to(ws.step, (k, 2)))
 
 
-def build_workspace(robot: Robot, cycle: Cycle, spacing: float = 0.005) -> Workspace:
+def build_workspace(robot: Robot, cycle: Cycle, spacing: float = 0.005, servo: bool = False) -> Workspace:
     """The workspace tables of one robot (``jaxflex.workspace``): the pose functions tabulated over
-    the cycle's rectangle with about ``spacing`` [m] between grid points. Raises ValueError when a
-    grid point is unreachable or singular (before any compilation)."""
-    return _workspaces(robot, [robot], cycle, spacing, stacked=False)
+    the cycle's rectangle with about ``spacing`` [m] between grid points; with ``servo`` those of
+    the servo coefficients too (``servo_linearized.ServoCoeffs``, of the robot with its rotor: for
+    the servo loop's tables, ``workspace.workspace_servo_tables``). Raises ValueError when a grid
+    point is unreachable or singular (before any compilation)."""
+    return _workspaces(robot, [robot], cycle, spacing, stacked=False, servo=servo)
 
 
-def build_workspaces(robots: Robot, cycle: Cycle, spacing: float = 0.005) -> Workspace:
+def build_workspaces(robots: Robot, cycle: Cycle, spacing: float = 0.005, servo: bool = False) -> Workspace:
     """``build_workspace`` for a stack of K robots: a Workspace whose leaves have a leading axis K."""
-    return _workspaces(robots, trees.unstack(robots), cycle, spacing, stacked=True)
+    return _workspaces(robots, trees.unstack(robots), cycle, spacing, stacked=True, servo=servo)
 
 
 _servo_coeffs = jax.jit(servo_coeffs_at, compiler_options=BUILD)
+
+
+def _servo_many(robot: Robot, qa, qa1, qa2) -> dict:
+    """``servo_coeffs_at`` of one robot at N concrete poses (N, 2) each, ``COEFF_CHUNK`` poses per call
+    (the program ``servo_path_tables`` compiles), the chunks side by side on the host's cores."""
+    n = qa.shape[0]
+    pad = -n % COEFF_CHUNK
+    qs = [np.concatenate([q, np.repeat(q[:1], pad, axis=0)]) for q in (qa, qa1, qa2)]
+    r = jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype=float), robot)
+    parts = host_map(lambda i: _servo_coeffs(r, *(q[i:i + COEFF_CHUNK] for q in qs)), range(0, n + pad, COEFF_CHUNK))
+    return trees.concatenate(parts, length=n)._asdict()
 
 
 def servo_path_tables(robot: Robot, path: Path) -> Tables:

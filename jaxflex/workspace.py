@@ -32,11 +32,18 @@ from jaxflex import trees
 from jaxflex.linearized import Coeffs, Tables, coeff_shapes, cubic_weights, pose_coeffs, segment_nodes
 from jaxflex.path import Cycle, Path, path_frame
 from jaxflex.robot import Robot, joint_motion
+from jaxflex.servo_linearized import ServoCoeffs
 
 ORDER0 = ("mass", "m_ae", "f0", "k0", "c0", "t0", "tq0", "tv0", "jx")       # pose only
 ORDER1 = ("f1", "k1", "c1", "t1", "tq1", "tv1", "jx1")                     # linear in qa1
 ORDER2 = ("f2", "k2", "t2", "tq2", "jx2")                                  # quadratic in qa1, linear in qa2
 FIELDS = ORDER0 + ORDER1 + ORDER2                                          # every field of the workspace
+# the servo coefficients (``servo_linearized.ServoCoeffs``), tabulated with ``servo=True`` only: the
+# same classes (d/dq_a of the residual's terms, and the end effector's motion with the motors)
+SERVO_ORDER0 = ("m_aa", "ka0", "jxa")
+SERVO_ORDER1 = ("ka1", "ca1", "jxa1")
+SERVO_ORDER2 = ("ka2", "jxa2")
+SERVO_FIELDS = SERVO_ORDER0 + SERVO_ORDER1 + SERVO_ORDER2
 MONOMIALS = {0: (0,), 1: (1, 2), 2: (3, 4, 5, 6, 7)}   # indices into [1, a, b, a^2, ab, b^2, c, d]
 # the (qa1, qa2) at which pose_coeffs is evaluated: e1, e2, e1 + e2 (qa1); e1, e2 (qa2). Each field
 # is a polynomial with only its class's monomials (``MONOMIALS``: exact, the model being quadratic in
@@ -48,7 +55,17 @@ PROBES = np.array([[1, 0, 0, 0], [0, 1, 0, 0], [1, 1, 0, 0], [0, 0, 1, 0], [0, 0
 
 
 def monomial_order(field: str) -> int:
-    return 0 if field in ORDER0 else 1 if field in ORDER1 else 2
+    return 0 if field in ORDER0 + SERVO_ORDER0 else 1 if field in ORDER1 + SERVO_ORDER1 else 2
+
+
+def has_servo(ws: "Workspace") -> bool:
+    """Whether the workspace also tabulates the servo coefficients (``build_workspace(servo=True)``)."""
+    return all(k in ws.values for k in SERVO_FIELDS)
+
+
+def restricted(ws: "Workspace", fields) -> "Workspace":
+    """The workspace with only the pose functions of ``fields``."""
+    return ws._replace(values={k: ws.values[k] for k in fields})
 
 
 class Workspace(NamedTuple):
@@ -71,10 +88,10 @@ def grid_shape(cycle: Cycle, spacing: float = 0.005) -> tuple[int, int]:
 
 
 def combine_probes(ev: dict) -> dict:
-    """The monomial coefficients B of every field (field -> (k, ...)) from ``pose_coeffs`` at the
-    five probes ``PROBES`` (field -> (5, ...))."""
+    """The monomial coefficients B of every field (field -> (k, ...)) from ``pose_coeffs`` (or
+    ``servo_pose_coeffs``) at the five probes ``PROBES`` (field -> (5, ...), workspace fields only)."""
     out = {}
-    for name in FIELDS:
+    for name in ev:
         e = ev[name]
         order = monomial_order(name)
         if order == 0:
@@ -192,11 +209,19 @@ def _monomials(qa1, qa2):
     return jnp.stack([jnp.ones_like(a), a, b, a * a, a * b, b * b, qa2[0], qa2[1]])
 
 
+def _polynomials(basis: dict, names, qa1, qa2) -> dict:
+    mono = _monomials(qa1, qa2)
+    return {k: jnp.tensordot(mono[np.asarray(MONOMIALS[monomial_order(k)])], basis[k], axes=1) for k in names}
+
+
 def coeffs_from_basis(basis: dict, qa, qa1, qa2) -> Coeffs:
     """``pose_coeffs`` from the pose functions at the pose qa (2,) and the path derivatives qa1, qa2."""
-    mono = _monomials(qa1, qa2)
-    fields = {k: jnp.tensordot(mono[np.asarray(MONOMIALS[monomial_order(k)])], v, axes=1) for k, v in basis.items()}
-    return Coeffs(**fields, qa=qa, qa1=qa1, qa2=qa2)
+    return Coeffs(**_polynomials(basis, FIELDS, qa1, qa2), qa=qa, qa1=qa1, qa2=qa2)
+
+
+def servo_from_basis(basis: dict, qa1, qa2) -> ServoCoeffs:
+    """``servo_pose_coeffs`` from the servo pose functions at a pose and the path derivatives qa1, qa2."""
+    return ServoCoeffs(**_polynomials(basis, SERVO_FIELDS, qa1, qa2))
 
 
 def path_nodes(robot: Robot, path: Path):
@@ -215,5 +240,14 @@ def workspace_tables(ws: Workspace, robot: Robot, path: Path) -> Tables:
     """The path's linearization tables (as ``linearized.build_tables``) from the workspace tables of
     the same robot and cycle; differentiable in the path parameters."""
     x, qa, qa1, qa2 = path_nodes(robot, path)
-    values = jax.vmap(coeffs_from_basis)(interpolate_nodes(ws, x), qa, qa1, qa2)
+    values = jax.vmap(coeffs_from_basis)(interpolate_nodes(restricted(ws, FIELDS), x), qa, qa1, qa2)
+    return Tables(values=values, breaks=path.breaks)
+
+
+def workspace_servo_tables(ws: Workspace, robot: Robot, path: Path) -> Tables:
+    """The path's servo tables (as ``servo_linearized.build_servo_tables``) from a workspace that
+    tabulates them (``has_servo``) of the same robot (rotor included) and cycle; differentiable in
+    the path parameters, and much cheaper to differentiate and to compile than the model's."""
+    x, _, qa1, qa2 = path_nodes(robot, path)
+    values = jax.vmap(servo_from_basis)(interpolate_nodes(restricted(ws, SERVO_FIELDS), x), qa1, qa2)
     return Tables(values=values, breaks=path.breaks)

@@ -283,7 +283,7 @@ def closed_loop_objective(x0, robot: Robot, cycle: Cycle, tf: float, dwell: floa
     scales = Scales(energy=jnp.full(k, energy), dwell_ms=jnp.full(k, amp**2 / 2),
                     torque_bound=jnp.full(k, float(torque_bound)))
     objective = DesignObjective(robots, cycle, jnp.asarray(float(tf)), jnp.asarray(float(dwell)), scales,
-                                build_workspaces(robots, cycle), servos=trees.stack(servos, dtype=float),
+                                build_workspaces(robots, cycle, servo=True), servos=trees.stack(servos, dtype=float),
                                 advance=jnp.asarray(float(feedforward_advance(nominal))), grid=fine, blend=blend,
                                 order=order, power=power, controller=0)
     return objective, encode(cycle, x0), which

@@ -169,3 +169,40 @@ def test_nodes_interpolated_in_steps_equal_each_node_alone():
     g_ref = jax.grad(loss(lambda x: jax.vmap(lambda p: interpolate_basis(ws, p))(x)))(xs)
     assert float(jnp.max(jnp.abs(g_ref))) > 1.0
     np.testing.assert_allclose(g, g_ref, rtol=0, atol=1e-14 * float(jnp.max(jnp.abs(g_ref))))
+
+
+def test_the_servo_coefficients_are_exact_polynomials_and_their_workspace_tables_match_the_models():
+    """The servo loop's coefficients (``servo_linearized.ServoCoeffs``: d/dq_a of the residual's
+    terms, the end effector's motion with the motors) have the same polynomial structure in the path
+    derivatives as the perfect controller's: rebuilt from the five probes they equal
+    ``servo_pose_coeffs`` at arbitrary (qa1, qa2) to 1e-12 of each field's range (exact, the model
+    being quadratic in velocities and linear in accelerations). The workspace with ``servo=True``
+    (6 kg, a 0.01 kg m^2 rotor) then gives the servo tables of an asymmetric Lamé design within 1e-5
+    of each field's range of the model's tables (bicubic interpolation on the 5 mm grid, as the
+    perfect controller's tables: measured 7e-8 to 5e-7), and a workspace without them is not taken for one that has them."""
+    from jaxflex.tables import _servo_many, servo_path_tables
+    from jaxflex.workspace import SERVO_FIELDS, has_servo, servo_from_basis, workspace_servo_tables
+
+    robot, cycle = robot_preset("default", payload=6.0).replace(rotor_inertia=0.01), cycle_preset()
+    qa = np.asarray(igm(robot, jnp.asarray([0.05, 0.27])))
+    # servo_pose_coeffs through the one compiled program the library's servo tables share
+    at = lambda p: _servo_many(robot, np.repeat(qa[None], len(p), 0), p[:, :2], p[:, 2:])
+    probed = at(np.asarray(PROBES))
+    basis = jax.tree_util.tree_map(lambda v: v[0], jax.vmap(combine_probes)({k: v[None] for k, v in probed.items()}))
+    rng = np.random.default_rng(1)
+    qa1s, qa2s = rng.normal(0, 4, (3, 2)), rng.normal(0, 300, (3, 2))             # rad/m, rad/m^2
+    refs = at(np.concatenate([qa1s, qa2s], axis=1))
+    for i in range(3):
+        ours = servo_from_basis(basis, jnp.asarray(qa1s[i]), jnp.asarray(qa2s[i]))._asdict()
+        for k in SERVO_FIELDS:
+            ref = np.asarray(refs[k][i])
+            np.testing.assert_allclose(ours[k], ref, rtol=0, atol=1e-12 * (np.max(np.abs(ref)) + 1e-300), err_msg=k)
+
+    ws = build_workspace(robot, cycle, servo=True)
+    assert has_servo(ws) and not has_servo(build_workspace(robot, cycle))
+    path = make_path(cycle, "lame", 0.015, 0.06, 3.5, 0.02, 0.04, 2.5)
+    exact = servo_path_tables(robot, path).values._asdict()
+    interp = jax.jit(workspace_servo_tables)(ws, robot, path).values._asdict()
+    for k in SERVO_FIELDS:
+        scale = float(jnp.max(jnp.abs(exact[k])))
+        assert float(jnp.max(jnp.abs(interp[k] - exact[k]))) <= 1e-5 * scale + 1e-300, k
