@@ -161,7 +161,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tf", type=float, default=0.43, help="motion time [s] (default: %(default)s)")
     p.add_argument("--steps", type=int, default=STUDY.train.optimizer.steps,
                    help="optimizer steps (default: %(default)s)")
-    p.add_argument("--coef", type=int, default=STUDY.n_coef, help="motion-law coefficients (default: %(default)s)")
+    p.add_argument("--coef", type=int, metavar="N",
+                   help=f"motion-law coefficients (default: {STUDY.n_coef}, or the --init design's; with --init, "
+                        "more than its design has write its law with N coefficients: the same law, more "
+                        "freedom to optimize)")
     p.add_argument("--lr", type=float, default=STUDY.train.optimizer.learning_rate,
                    help="Adam learning rate (linear warm-up over the first 10 %% of the steps, then "
                         "a cosine decay to a tenth; default: %(default)s)")
@@ -393,11 +396,12 @@ def study_config(args) -> StudyConfig:
     if getattr(args, "init", None):
         from jaxflex.experiments.io import initial_design
 
-        init = initial_design(args.init, args.blend if args.free_path else None, STUDY.train.order)
+        init = initial_design(args.init, args.blend if args.free_path else None, STUDY.train.order, args.coef)
     return dataclasses.replace(
         STUDY.with_optimizer(steps=args.steps, learning_rate=args.lr).with_train(
             blend=args.blend, power=ROBUST_POWER if worst else 1.0),
-        n_coef=args.coef, training_set=args.train, absolute=worst,
+        n_coef=(len(init.coef) if init is not None else STUDY.n_coef) if args.coef is None else args.coef,
+        training_set=args.train, absolute=worst,
         box=Box(args.box_young, args.box_payload, tuple(args.box_damping), args.box_length, args.box_rotor).checked(),
         box_points=args.box_points, box_samples=args.box_samples, richer_modes=args.richer_modes, init=init)
 

@@ -130,11 +130,13 @@ def design_of_record(record: dict):
     return x, p["blend"], int(record.get("order", 3))
 
 
-def initial_design(path, blend: str | None, order: int):
+def initial_design(path, blend: str | None, order: int, n_coef: int | None = None):
     """The design of an earlier ``jaxflex optimize`` JSON at ``path`` to start an optimization from
     (its ``design`` entry, ``design_of_record``); ValueError, before anything compiles, for a file
     that holds none or whose blend family or law order differ from the run's (``blend``, ``order``;
-    blend None: any, as a law-only run takes the law alone)."""
+    blend None: any, as a law-only run takes the law alone). With ``n_coef`` its law is written with
+    that many coefficients (``profiles.elevate``: the same law, more freedom); fewer than it has is
+    refused."""
     try:
         with open(path) as f:
             record = json.load(f)
@@ -147,6 +149,13 @@ def initial_design(path, blend: str | None, order: int):
                          f"(give --blend {family})")
     if law_order != order:
         raise ValueError(f"--init {path}: its law has end-factor order {law_order}, this run {order}")
+    if n_coef is not None and n_coef != len(x.coef):
+        from jaxflex.profiles import elevate
+
+        if n_coef < len(x.coef):
+            raise ValueError(f"--init {path}: its law has {len(x.coef)} coefficients, which --coef {n_coef} "
+                             f"cannot hold (give --coef {len(x.coef)} or more)")
+        x = x._replace(coef=elevate(x.coef, n_coef))
     return x
 
 

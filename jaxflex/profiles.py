@@ -105,6 +105,23 @@ def shaped(coef, order: int = 3, name: str = "shaped") -> Profile:
     return Profile(ta=jnp.asarray(0.0), coef=coef, kind="shaped", order=int(order), name=name)
 
 
+def elevate(coef, n: int) -> np.ndarray:
+    """The coefficients (n,) of the same g as ``coef`` (k,), k <= n, in the Bernstein basis of degree
+    n - 1 (degree elevation: B^m_j = ((m + 1 - j) B^{m+1}_j + (j + 1) B^{m+1}_{j+1}) / (m + 1)), so
+    ``shaped(elevate(c, n))`` is the law of ``shaped(c)`` with more coefficients to optimize.
+    Concrete arrays only."""
+    c = np.asarray(coef, dtype=float)
+    if c.ndim != 1 or c.size < 1:
+        raise ValueError("coefficients to elevate must be a non-empty 1-D array")
+    if int(n) < c.size:
+        raise ValueError(f"a law of {c.size} coefficients cannot be written exactly with {int(n)}")
+    while c.size < int(n):
+        m = c.size - 1                                   # degree m -> m + 1
+        j = np.arange(1, m + 1)
+        c = np.concatenate([c[:1], (j / (m + 1)) * c[:-1] + (1 - j / (m + 1)) * c[1:], c[-1:]])
+    return c
+
+
 def input_shaped(base: str, amplitudes, times, name: str | None = None) -> Profile:
     """Paper law ``base`` convolved with impulses (amplitudes (K,) summing to 1, times (K,) as
     fractions of the total time, ascending from 0 and < 1); the total motion time is unchanged."""

@@ -94,8 +94,9 @@ def test_optimize_command_defaults_are_the_study_defaults():
 
     a, c = build_parser().parse_args(["optimize"]), StudyConfig()
     o = c.train.optimizer
-    assert (a.steps, a.coef, a.lr, a.train, a.blend, a.box_points, a.box_samples, a.richer_modes) == (
-        o.steps, c.n_coef, o.learning_rate, c.training_set, c.train.blend, c.box_points, c.box_samples, c.richer_modes)
+    assert (a.steps, a.lr, a.train, a.blend, a.box_points, a.box_samples, a.richer_modes) == (
+        o.steps, o.learning_rate, c.training_set, c.train.blend, c.box_points, c.box_samples, c.richer_modes)
+    assert a.coef is None           # the study's count, or an --init design's (study_config, below)
     assert (a.box_young, a.box_payload, tuple(a.box_damping), a.box_length, a.box_rotor) == dataclasses.astuple(c.box)
     assert a.objective == "worst" and c.absolute and c.train.power == ROBUST_POWER and a.free_path == c.free_path
     assert study_config(a) == c                                 # the configuration the command runs
@@ -302,6 +303,17 @@ def test_init_takes_the_design_of_a_record_and_refuses_another_blend_family_or_l
     with pytest.raises(ValueError, match="order 3, this run 4"):
         initial_design(path, "smoothstep", 4)
     assert initial_design(path, None, 3).coef.shape == (6,)           # a law-only run takes the law alone
+    # more coefficients: the same law written with 10 (Bernstein degree elevation), S and its first
+    # three derivatives to 1e-12 of their scale; fewer than the design has: refused
+    from jaxflex.profiles import profile_values, shaped
+
+    x10 = initial_design(path, "smoothstep", 3, 10)
+    assert x10.coef.shape == (10,) and initial_design(path, "smoothstep", 3, 6).coef.tolist() == rec["design"]["coef"]
+    eta = np.linspace(0.0, 1.0, 201)
+    for a, b in zip(profile_values(shaped(rec["design"]["coef"]), eta), profile_values(shaped(x10.coef), eta)):
+        np.testing.assert_allclose(b, a, rtol=0, atol=1e-12 * float(np.max(np.abs(a))))
+    with pytest.raises(ValueError, match="6 coefficients, which --coef 5 cannot hold"):
+        initial_design(path, "smoothstep", 3, 5)
     path.write_text(json.dumps({"laws": {}}))
     with pytest.raises(ValueError, match="not the JSON of a jaxflex optimize run"):
         initial_design(path, "smoothstep", 3)
