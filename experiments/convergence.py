@@ -53,6 +53,18 @@ def dt_study(dwell: float = 0.1) -> dict:
     return out
 
 
+def dt_markdown(study: dict) -> str:
+    """The dt-convergence table of ``dt_study`` (largest relative change [%] per metric, limit, worst
+    run) as Markdown."""
+    g0, g1 = study["grids"]["base"], study["grids"]["quarter"]
+    rows = [[r["metric"], f"{100 * r['max_rel_change']:.3f}", f"{100 * r['limit']:.0f}", r["worst_run"],
+             "yes" if r["max_rel_change"] < r["limit"] else "NO"] for r in study["rows"]]
+    head = (f"Default grid: {g0['coarse']} frozen intervals x {g0['fine']} steps over tf, "
+            f"{g0['dwell_steps']} dwell steps; quartered: {g1['coarse']} x {g1['fine']}, "
+            f"{g1['dwell_steps']}. Largest relative change over the 24 runs:")
+    return head + "\n\n" + table(["metric", "max change [%]", "limit [%]", "worst run", "within"], rows)
+
+
 def estimate_rows(res, reference: dict) -> dict:
     """The error estimate of a sweep ``res`` (``SweepResult.accuracy``) against its error measured
     from ``reference`` (the same runs on a finer grid), per metric: how many runs the estimate
