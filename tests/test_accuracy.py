@@ -123,3 +123,31 @@ def test_the_default_grid_refines_until_the_tolerance_is_met_and_a_given_dt_that
     measured = abs(res.metrics[m][0, 0, 0] - ref.metrics[m][0, 0, 0])
     estimate = acc.errors[m][0, 0, 0]
     assert measured <= estimate <= 30 * measured, (measured, estimate)
+
+
+def test_the_reports_convergence_section_renders_its_tables():
+    """``reproduce``'s step-convergence section (only the full run has it; ``--quick`` skips it) from
+    records shaped as ``convergence.dt_study`` and ``reference_study`` write them: the dt table with
+    each metric's change against its limit, the estimate's table, and the fast-against-full table.
+    The full run once failed here, after hours of sections, on a removed table helper."""
+    from jaxflex.experiments.report import convergence_section
+    from jaxflex.metrics import METRICS
+
+    grid = {"coarse": 192, "fine": 23, "dwell_steps": 1000}
+    rows = [{"metric": m, "max_rel_change": 0.001 * (k + 1), "limit": 0.02, "worst_run": "lame/poly7/6 kg"}
+            for k, m in enumerate(METRICS)]
+    runs = [{"run": "lame/poly7", "payload": 6.0, "tf": 0.43, "value_mm": 0.03, "estimate_mm": 2e-5,
+             "error_mm": 1e-5, "tolerance_mm": 1.5e-4}]
+    estimate = {"ratio": 2.0, "met": True, "same_ranking": True, "dwell_runs": runs,
+                "rows": [{"metric": m, "covered": 24, "runs": 24, "max_estimate_rel": 1e-3, "max_error_rel": 5e-4}
+                         for m in METRICS]}
+    dt = {"grids": {"base": grid, "quarter": {**grid, "coarse": 768, "dwell_steps": 4000}}, "rows": rows,
+          "estimate": estimate}
+    case = {"payload": 6.0, "tf": 0.43, "profiles": ["poly7", "bang_bang"], "reference_s": 100.0,
+            "metrics": {m: {"fast": [1.0, 2.0], "full": [1.001, 2.0]} for m in METRICS}}
+    reference = {"method": "exprb3", "dt": 2e-5, "cases": [case]}
+    text = convergence_section({"dt": dt, "reference": reference}, {})
+    assert "192 frozen intervals x 23 steps" in text and "| dwell_residual_mm |" in text
+    assert "Every metric is within its limit." in text
+    assert "runs with estimate >= error" in text and "Fast minus full, relative [%], 6 kg" in text
+    assert "every metric within the 0.5 %" in text
