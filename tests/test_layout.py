@@ -26,21 +26,31 @@ PHYSICS = ("model", "beams", "linearized", "rollout", "simulate", "metrics", "ri
 RUNTIME = "jaxflex.runtime"
 
 
+def _package(path: pathlib.Path, module: str) -> str:
+    """The package a module's relative imports resolve against."""
+    return module if path.name == "__init__.py" else module.rpartition(".")[0]
+
+
+def _from_base(node: ast.ImportFrom, package: str) -> str:
+    """The absolute module of a ``from ... import`` (relative ones resolved against ``package``)."""
+    if not node.level:
+        return node.module or ""
+    parts = package.split(".")
+    parts = parts[:len(parts) - node.level + 1]
+    return ".".join(parts + ([node.module] if node.module else []))
+
+
 def _imports(path: pathlib.Path, module: str = ""):
     """(line, absolute module name) of every import in the file (relative ones resolved against the
     module's package), and for ``from package import name`` also ``package.name``."""
     tree = ast.parse(path.read_text(), filename=str(path))
-    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    package = _package(path, module)
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
             for alias in node.names:
                 yield node.lineno, alias.name
         elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                parts = package.split(".")
-                parts = parts[:len(parts) - node.level + 1]
-                base = ".".join(parts + ([node.module] if node.module else []))
+            base = _from_base(node, package)
             yield node.lineno, base
             for alias in node.names:
                 yield node.lineno, f"{base}.{alias.name}"
@@ -179,7 +189,7 @@ def test_no_module_uses_an_undefined_name():
 def _module_aliases(tree: ast.Module, module: str, path: pathlib.Path, modules: dict) -> dict:
     """Local name -> module name, for every package module the file binds to a name (``import a.b
     as m``, ``from . import m``, ``from jaxflex import m``; anywhere in the file)."""
-    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    package = _package(path, module)
     out = {}
     for node in ast.walk(tree):
         if isinstance(node, ast.Import):
@@ -187,11 +197,7 @@ def _module_aliases(tree: ast.Module, module: str, path: pathlib.Path, modules: 
                 if alias.asname and alias.name in modules:
                     out[alias.asname] = alias.name
         elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                parts = package.split(".")
-                parts = parts[:len(parts) - node.level + 1]
-                base = ".".join(parts + ([node.module] if node.module else []))
+            base = _from_base(node, package)
             for alias in node.names:
                 full = f"{base}.{alias.name}"
                 if full in modules:
