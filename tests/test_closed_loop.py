@@ -85,7 +85,11 @@ def test_the_closed_loop_objective_is_the_engines_closed_loop_and_its_gradient_t
     each model its own servo) gives the evaluation engine's closed-loop dwell residual on every
     model to 1e-6 (the workspace tables' interpolation against the model's own), and its reverse-mode
     gradient matches central differences to 1e-5 relative (blend size, blend shape and a law
-    coefficient)."""
+    coefficient) or 1e-6 absolute. The absolute part is the differences' own scatter: the objective
+    (about 6.8) carries round-off of about 1e-13 through its rollouts, and steps of 3e-7 to 3e-5 give
+    central differences that scatter by up to 1.2e-6 about the gradient (3.5e-7 at 1e-5, the step
+    used; a gradient of 0.1 is then only 1e-5 relative)."""
+    import jax
     from jaxflex.optimize.gradient import OneProgram
     from jaxflex.optimize.objective import decode
 
@@ -93,7 +97,7 @@ def test_the_closed_loop_objective_is_the_engines_closed_loop_and_its_gradient_t
     ref = {"residual_energy": np.array([1e-3]), "dwell_residual_mm": np.array([0.1])}
     obj, p0, kept = cl.closed_loop_objective(x0, robot, CYCLE, tf, dwell, grid, 30.0, which, ref, 1e4)
     assert kept == which
-    value, terms = obj(p0)
+    value, terms = jax.jit(lambda p: obj(p))(p0)
     path = design_path(CYCLE, decode(CYCLE, p0), "smoothstep")
     out = cl.evaluate({"x": cl.Trajectory(path, shaped(p0.coef, 3), "flexible")}, robot, CYCLE, tf, dwell, grid, 30.0,
                       which)
@@ -101,11 +105,11 @@ def test_the_closed_loop_objective_is_the_engines_closed_loop_and_its_gradient_t
                                rtol=1e-6)
     (v2, _), g = OneProgram().value_and_grad(obj, p0)
     assert float(v2) == pytest.approx(float(value), rel=1e-12)
-    eps = 1e-6
+    eps, f = 1e-5, jax.jit(lambda p: obj(p)[0])
     for field, i in (("blend", 0), ("blend", 1), ("coef", 2)):
         bump = lambda d: p0._replace(**{field: getattr(p0, field).at[i].add(d)})
-        fd = (float(obj(bump(eps))[0]) - float(obj(bump(-eps))[0])) / (2 * eps)
-        assert float(getattr(g, field)[i]) == pytest.approx(fd, rel=1e-5, abs=1e-8)
+        fd = (float(f(bump(eps))) - float(f(bump(-eps)))) / (2 * eps)
+        assert float(getattr(g, field)[i]) == pytest.approx(fd, rel=1e-5, abs=1e-6)
 
 
 def test_the_closed_loop_report_and_figure_render_a_study_record(tmp_path):
