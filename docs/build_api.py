@@ -29,7 +29,9 @@ def build(out) -> Path:
     os.environ.setdefault("MPLBACKEND", "Agg")
     import pdoc
 
-    pdoc.render.configure(docformat="restructuredtext", footer_text="jaxflex API reference")
+    # no highlighted source under each function: the reference is the docstrings (the source is in the
+    # repository), and highlighting it was about half of the build's time
+    pdoc.render.configure(docformat="restructuredtext", footer_text="jaxflex API reference", show_source=False)
     out = Path(out)
     pdoc.pdoc(*modules(), output_directory=out)
     return out / "index.html"
