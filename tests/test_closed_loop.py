@@ -97,7 +97,8 @@ def test_the_closed_loop_objective_is_the_engines_closed_loop_and_its_gradient_t
     ref = {"residual_energy": np.array([1e-3]), "dwell_residual_mm": np.array([0.1])}
     obj, p0, kept = cl.closed_loop_objective(x0, robot, CYCLE, tf, dwell, grid, 30.0, which, ref, 1e4)
     assert kept == which
-    value, terms = jax.jit(lambda p: obj(p))(p0)
+    run = jax.jit(lambda p: obj(p))                 # one compiled objective for the value and the differences
+    value, terms = run(p0)
     path = design_path(CYCLE, decode(CYCLE, p0), "smoothstep")
     out = cl.evaluate({"x": cl.Trajectory(path, shaped(p0.coef, 3), "flexible")}, robot, CYCLE, tf, dwell, grid, 30.0,
                       which)
@@ -105,7 +106,7 @@ def test_the_closed_loop_objective_is_the_engines_closed_loop_and_its_gradient_t
                                rtol=1e-6)
     (v2, _), g = OneProgram().value_and_grad(obj, p0)
     assert float(v2) == pytest.approx(float(value), rel=1e-12)
-    eps, f = 1e-5, jax.jit(lambda p: obj(p)[0])
+    eps, f = 1e-5, lambda p: run(p)[0]
     for field, i in (("blend", 0), ("blend", 1), ("coef", 2)):
         bump = lambda d: p0._replace(**{field: getattr(p0, field).at[i].add(d)})
         fd = (float(f(bump(eps))) - float(f(bump(-eps)))) / (2 * eps)
