@@ -202,8 +202,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="optimize the motion law only, on the best paper combination's path")
     p.add_argument("--init", metavar="FILE",
                    help="start from the design in FILE, the JSON of an earlier jaxflex optimize run (its "
-                        "perfect-controller design: blends and law; with --law-only its law); with --steps 0 "
-                        "that design is evaluated, exported and, with --servo, refined as it is")
+                        "perfect-controller design: blends and law; of a --servo run that refined it, the refined "
+                        "design, so a refinement continues where it ended; with --law-only its law); with "
+                        "--steps 0 that design is evaluated, exported and, with --servo, refined as it is")
     p.add_argument("--verify", action="store_true",
                    help="re-simulate the best paper combination and the optimized trajectory at a quarter "
                         "step and with the full nonlinear model (exponential integrator, step 2e-5 s; this adds to the "

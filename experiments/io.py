@@ -131,8 +131,10 @@ def design_of_record(record: dict):
 
 
 def initial_design(path, blend: str | None, order: int, n_coef: int | None = None):
-    """The design of an earlier ``jaxflex optimize`` JSON at ``path`` to start an optimization from
-    (its ``design`` entry, ``design_of_record``); ValueError, before anything compiles, for a file
+    """The design of an earlier ``jaxflex optimize`` JSON at ``path`` to start an optimization from:
+    its ``design`` entry (``design_of_record``), or, for a run with the servo in the loop that
+    refined it, the refined design (``closed_loop.refined.design``, the same blend family and law
+    order), so that a refinement continues from where the last run ended; ValueError, before anything compiles, for a file
     that holds none or whose blend family or law order differ from the run's (``blend``, ``order``;
     blend None: any, as a law-only run takes the law alone). With ``n_coef`` its law is written with
     that many coefficients (``profiles.elevate``: the same law, more freedom); fewer than it has is
@@ -141,6 +143,9 @@ def initial_design(path, blend: str | None, order: int, n_coef: int | None = Non
         with open(path) as f:
             record = json.load(f)
         x, family, law_order = design_of_record(record["design"])
+        refined = (record.get("closed_loop") or {}).get("refined")
+        if refined is not None:                 # a servo run's refined design continues its refinement
+            x = corners_design(refined["design"])
     except (OSError, ValueError, KeyError, TypeError, IndexError) as err:
         raise ValueError(f"--init {path}: not the JSON of a jaxflex optimize run with a design "
                          f"({type(err).__name__}: {err})") from None

@@ -314,6 +314,17 @@ def test_init_takes_the_design_of_a_record_and_refuses_another_blend_family_or_l
         np.testing.assert_allclose(b, a, rtol=0, atol=1e-12 * float(np.max(np.abs(a))))
     with pytest.raises(ValueError, match="6 coefficients, which --coef 5 cannot hold"):
         initial_design(path, "smoothstep", 3, 5)
+    # a servo run that refined its design: the refined design (not the perfect controller's), so that
+    # a refinement continues where the last run ended; its law elevates the same way
+    refined = {"corners": [{"d_m": 0.022, "e_m": 0.031, "n": 3.3}, {"d_m": 0.025, "e_m": 0.036, "n": 3.5}],
+               "coef": [1.0, 1.2, 0.8, 1.0, 1.1, 0.9, 1.0, 1.02]}
+    path.write_text(json.dumps({**rec, "closed_loop": {"refined": {"design": refined}}}))
+    xr = initial_design(path, "smoothstep", 3)
+    np.testing.assert_array_equal(np.asarray(xr.e), [0.031, 0.036])
+    np.testing.assert_array_equal(np.asarray(xr.coef), refined["coef"])
+    assert initial_design(path, "smoothstep", 3, 10).coef.shape == (10,)
+    with pytest.raises(ValueError, match="8 coefficients, which --coef 6 cannot hold"):
+        initial_design(path, "smoothstep", 3, 6)
     path.write_text(json.dumps({"laws": {}}))
     with pytest.raises(ValueError, match="not the JSON of a jaxflex optimize run"):
         initial_design(path, "smoothstep", 3)
