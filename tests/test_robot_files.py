@@ -21,6 +21,20 @@ def test_the_example_files_are_the_papers_robot_and_cycle():
     assert rf.cycle_to_dict(rf.load_cycle(EXAMPLES / "paper_cycle.toml")) == rf.cycle_to_dict(cycle_preset())
 
 
+def test_the_other_example_robot_is_what_its_comment_says_and_reaches_its_move():
+    """examples/other_robot.toml: the paper's robot with l1 0.26 m, l2 0.40 m, a 0.12 m and 2 kg,
+    every other field the paper's; on the move its comment gives (300 mm at y 0.32 m) the rigid model
+    closes at both ends (IGM then DGM to 1e-12 m), in the assembly mode of the pick point."""
+    files = rf.setup("default", EXAMPLES / "other_robot.toml", pick=[-0.15, 0.32], place=[0.15, 0.32])
+    paper = rf.robot_to_dict(robot_preset("default", payload=6.0))
+    mine = rf.robot_to_dict(files.robot)
+    changed = {k for k in paper if mine[k] != paper[k]}
+    assert changed <= {"l1", "l2", "a", "payload", "assembly"} and {"l1", "l2", "a", "payload"} <= changed
+    assert (mine["l1"], mine["l2"], mine["a"], mine["payload"]) == (0.26, 0.40, 0.12, 2.0)
+    for point in (files.cycle.pick, files.cycle.place):
+        np.testing.assert_allclose(np.asarray(dgm(files.robot, igm(files.robot, point))), point, atol=1e-12)
+
+
 def test_a_robot_and_a_cycle_round_trip_through_toml(tmp_path):
     """Every field of another robot (other links, motors, payload, rotor, damping, working modes) and
     of another cycle survives writing and reading; the servo table too. The loaded robot's rigid
