@@ -278,9 +278,17 @@ class Carry(NamedTuple):
     integral: jax.Array
 
 
-def _march(carry: Carry, maps: _Maps, steps: _Steps, servo: Servo, unroll: int):
+MARCH_UNROLL = 1    # the closed loop's step is not unrolled (``_march``)
+
+
+def _march(carry: Carry, maps: _Maps, steps: _Steps, servo: Servo):
     """The fine steps of every interval (leaves of ``maps`` (Nc, ...), of ``steps`` (Nc, m, ...)):
-    returns the final carry and, per step, the state and the applied torque at its start."""
+    returns the final carry and, per step, the state and the applied torque at its start.
+
+    Unlike the prescribed passes' small step (``Grid.unroll``), the closed loop's step holds the
+    sample's interpolation, the control law and the held torque's response: unrolling it made
+    every program that contains it compile a quarter to a third longer, and the same results no
+    sooner (docs/performance.md), so it runs ``MARCH_UNROLL`` steps per loop iteration."""
     period = 1.0 / servo.rate
     nc, p1 = maps.ru.shape[:2]
     n2 = maps.ru.shape[-1]
@@ -309,7 +317,7 @@ def _march(carry: Carry, maps: _Maps, steps: _Steps, servo: Servo, unroll: int):
                         jnp.where(has, c.integral - period * at[:2], c.integral))
             return nxt, (c.x, c.u)
 
-        return jax.lax.scan(step, c, st, unroll=unroll)
+        return jax.lax.scan(step, c, st, unroll=MARCH_UNROLL)
 
     return jax.lax.scan(interval, carry, (step_map, steps, nodes))
 
@@ -405,7 +413,7 @@ def closed_loop(tables: Tables, servo_tables: Tables, samples: MotionSamples, sc
 
     def march(f_s, f_e):
         st = _steps(maps, f_s, f_e, sched_m, ff_m, nc)
-        end, (xs, us) = _march(start, maps, st, servo, grid.unroll)
+        end, (xs, us) = _march(start, maps, st, servo)
         return end, xs.reshape(n_steps, -1), us.reshape(n_steps, 2)
 
     # ---- first pass, and the corrections of the second along it
@@ -465,7 +473,7 @@ def closed_loop(tables: Tables, servo_tables: Tables, samples: MotionSamples, sc
     maps_d = jax.tree_util.tree_map(lambda a: a[None], _maps(m_p, k_p, c_p, hd))
     f_d = jnp.broadcast_to(force_p, (nd, n))
     st_d = _steps(maps_d, f_d, f_d, sched_d, ff_d, 1)
-    end_d, (xd, ud) = _march(end2, maps_d, st_d, servo, grid.unroll)
+    end_d, (xd, ud) = _march(end2, maps_d, st_d, servo)
     xd = jnp.concatenate([xd.reshape(nd, -1), end_d.x[None]])
     ud = jnp.concatenate([ud.reshape(nd, 2), end_d.u[None]])
     zddd = jax.vmap(lambda x, u: jnp.linalg.solve(m_p, force_p.at[:2].add(u) - c_p @ x[n:] - k_p @ x[:n]))(xd, ud)

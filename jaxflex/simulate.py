@@ -43,7 +43,9 @@ from jaxflex.profiles import Profile, profile_eval
 class Grid(NamedTuple):
     """Static discretization. ``coarse`` intervals over [0, tf] (a multiple of 8, so that tf/8, tf/4
     and tf/2 are interval boundaries), ``fine`` steps per interval, ``dwell_steps`` over the dwell,
-    ``squarings`` of the matrix exponential (see ``squarings_for_robot``), the scan ``unroll``;
+    ``squarings`` of the matrix exponential (see ``squarings_for_robot``), the ``unroll`` of the
+    passes' scans (steps per loop iteration; the servo loop's larger step is not unrolled,
+    ``servo_simulate.MARCH_UNROLL``);
     ``remainder_points`` samples of the second-order remainder per coarse interval and
     ``continuous``: correct the frozen coefficients to continuous ones in the second pass (see the
     module docstring; False reproduces the plain frozen-coefficient integrator)."""

@@ -96,7 +96,7 @@ def test_the_fast_loops_free_response_at_rest_is_the_sampled_loops():
                        start=jnp.broadcast_to(start, (1, count)),
                        weights=jnp.broadcast_to(weights, (1, count) + weights.shape), ff=zeros(2))
         x0 = jnp.zeros(2 * n).at[0].set(1e-4).at[1].set(-5e-5)
-        _, (xs, _) = _march(Carry(x0, jnp.zeros(2), jnp.zeros(2), jnp.zeros(2)), maps, steps, s, 1)
+        _, (xs, _) = _march(Carry(x0, jnp.zeros(2), jnp.zeros(2), jnp.zeros(2)), maps, steps, s)
         loop = sv.sampled_loop(r, s, qa)                     # on [z, z' / w]: z's rows are the same
         ys = jax.lax.scan(lambda y, _: (loop @ y, y), x0, None, length=count)[1]
         return xs.reshape(count, -1)[:, :n], ys[:, :n]
