@@ -260,6 +260,8 @@ def figure(study, out_dir: Path):
     laws = ((best, f"{display_name(study.best_paper)} (best paper)", dict(ls="--")),
             (make_profile("poly7"), display_name("poly7"), dict(ls=":")),
             (opt, "optimized", dict(ls="-", color="k", lw=1.6)))
+    if study.best_paper == "poly7":         # one curve, one legend entry
+        laws = laws[:1] + laws[2:]
     for i, (p, lab, style) in enumerate(laws):
         v = profile_values(p, eta)
         style = dict(color=f"C{i}", lw=1.2) | style

@@ -290,6 +290,11 @@ def test_optimized_law_figure_is_fit_for_a_paper(capture, tmp_path):
     names = [t.get_text() for t in legend_texts(fig)]
     assert "trapezoidal 1/4 (best paper)" in names and "7th-degree polynomial" in names
     assert "polar polynomial, d = e = 25 mm (best paper)" in names and "optimized (Lamé)" in names
+    # when the best paper law is poly7 itself, it is drawn and named once
+    capture.clear()
+    optimize_exp.figure(SimpleNamespace(**{**vars(_design_study()), "best_paper": "poly7"}), tmp_path)
+    names = [t.get_text() for t in legend_texts(capture["optimized_law.png"])]
+    assert names.count("7th-degree polynomial (best paper)") == 1 and "7th-degree polynomial" not in names
 
 
 def test_box_figure_is_fit_for_a_paper(capture, monkeypatch, tmp_path):
