@@ -1,0 +1,61 @@
+"""The designs shipped in examples/designs (built by ``jaxflex optimize --servo``): each is what
+``--init`` continues from, and its controller files agree with the library's model of the robot
+and servo they were built for, so a file gone stale after a change of the model or of the gain rule
+fails here."""
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+DESIGNS = Path(__file__).resolve().parents[1] / "examples" / "designs"
+CASES = sorted(p for p in DESIGNS.iterdir() if p.is_dir())
+
+
+def _csv(path):
+    with open(path) as f:
+        rows = list(csv.reader(f))
+    return rows[0], np.asarray(rows[1:], dtype=float)
+
+
+@pytest.mark.parametrize("case", CASES, ids=[p.name for p in CASES])
+def test_a_shipped_design_is_what_init_starts_from_and_its_export_fits_the_model(case):
+    """``--init`` of the record starts from its refined design (both corners, every coefficient);
+    the controller file holds the default gain rule's gains for that robot, bandwidth, rate and
+    rotor (Kp = J (2 pi fc)^2, Kd = 2 0.7 J 2 pi fc, to 1e-9); the CSV runs from the pick to the
+    place at rest, its joint angles the IGM of its points (1e-9 rad), at the file's rate over tf,
+    and its torque at the pick, at rest, is the static torque of the model at the pick within the
+    links' sag (2 %)."""
+    from jaxflex.experiments.io import initial_design
+    from jaxflex.path import make_path
+    from jaxflex.rigid import rigid_torques
+    from jaxflex.robot import cycle_preset, igm, robot_preset
+    from jaxflex.servo import servo_from_bandwidth
+
+    rec = json.loads((case / "optimize.json").read_text())
+    refined = rec["closed_loop"]["refined"]["design"]
+    x = initial_design(case / "optimize.json", rec["design"]["path"]["blend"], int(rec["design"]["order"]))
+    np.testing.assert_array_equal(np.asarray(x.coef), refined["coef"])
+    np.testing.assert_array_equal(np.asarray(x.d), [c["d_m"] for c in refined["corners"]])
+
+    ctrl = json.loads((case / "controller.json").read_text())
+    payload, tf = rec["payloads"][0], rec["tf"]
+    robot, cycle = robot_preset("default", payload=payload), cycle_preset()
+    servo = servo_from_bandwidth(robot, make_path(cycle, "lame", 0.025), ctrl["fc"], rate=ctrl["rate"],
+                                 rotor_inertia=ctrl["rotor_inertia"])
+    np.testing.assert_allclose(ctrl["kp"], np.asarray(servo.kp), rtol=1e-9)
+    np.testing.assert_allclose(ctrl["kd"], np.asarray(servo.kd), rtol=1e-9)
+
+    head, rows = _csv(case / "trajectory.csv")
+    assert head == ctrl["columns"] and ctrl["tf"] == tf
+    np.testing.assert_allclose(np.diff(rows[:, 0]), 1.0 / ctrl["csv_rate"], rtol=1e-9)
+    assert rows[-1, 0] == pytest.approx(tf, rel=1e-12)
+    np.testing.assert_allclose(rows[0, 1:3], cycle.pick, atol=1e-12)
+    np.testing.assert_allclose(rows[-1, 1:3], cycle.place, atol=1e-12)
+    np.testing.assert_array_equal(rows[[0, -1], 5:9], 0.0)
+    for i in (0, len(rows) // 3, len(rows) - 1):
+        np.testing.assert_allclose(rows[i, 3:5], np.asarray(igm(robot, rows[i, 1:3])), atol=1e-9)
+    static = np.asarray(rigid_torques(robot.replace(rotor_inertia=ctrl["rotor_inertia"]), rows[0, 3:5],
+                                      np.zeros(2), np.zeros(2)))
+    np.testing.assert_allclose(rows[0, 9:11], static, rtol=0.02, atol=0.02 * np.max(np.abs(static)))
