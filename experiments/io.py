@@ -135,10 +135,10 @@ def initial_design(path, blend: str | None, order: int, n_coef: int | None = Non
     its ``design`` entry (``design_of_record``), or, for a run with the servo in the loop that
     refined it, the refined design (``closed_loop.refined.design``, the same blend family and law
     order), so that a refinement continues from where the last run ended. ValueError, before
-    anything compiles, for a file that holds none or whose blend family or law order differ from the run's (``blend``, ``order``;
-    blend None: any, as a law-only run takes the law alone). With ``n_coef`` its law is written with
-    that many coefficients (``profiles.elevate``: the same law, more freedom); fewer than it has is
-    refused."""
+    anything compiles, for a file that holds none or whose blend family or law order differ from
+    the run's (``blend``, ``order``; blend None: any, as a law-only run takes the law alone). With
+    ``n_coef`` its law is written with that many coefficients (``profiles.elevate``: the same law,
+    more freedom); fewer than it has is refused."""
     try:
         with open(path) as f:
             record = json.load(f)
