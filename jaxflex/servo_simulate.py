@@ -286,9 +286,9 @@ def _march(carry: Carry, maps: _Maps, steps: _Steps, servo: Servo):
     returns the final carry and, per step, the state and the applied torque at its start.
 
     Unlike the prescribed passes' small step (``Grid.unroll``), the closed loop's step holds the
-    sample's interpolation, the control law and the held torque's response: unrolling it made
-    every program that contains it compile a quarter to a third longer, and the same results no
-    sooner (docs/performance.md), so it runs ``MARCH_UNROLL`` steps per loop iteration."""
+    sample's interpolation, the control law and the held torque's response: unrolling it
+    lengthened the compile of every program that contains it, by a tenth to a third, with no clear
+    gain in run time (docs/performance.md), so it runs ``MARCH_UNROLL`` steps per loop iteration."""
     period = 1.0 / servo.rate
     nc, p1 = maps.ru.shape[:2]
     n2 = maps.ru.shape[-1]
