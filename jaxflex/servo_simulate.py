@@ -287,7 +287,7 @@ def _march(carry: Carry, maps: _Maps, steps: _Steps, servo: Servo):
 
     Unlike the prescribed passes' small step (``Grid.unroll``), the closed loop's step holds the
     sample's interpolation, the control law and the held torque's response: unrolling it
-    lengthened the compile of every program that contains it, by a tenth to a third, with no clear
+    lengthened the compile of every program that contains it, by a fifth to a third, with no
     gain in run time (docs/performance.md), so it runs ``MARCH_UNROLL`` steps per loop iteration."""
     period = 1.0 / servo.rate
     nc, p1 = maps.ru.shape[:2]
