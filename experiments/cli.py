@@ -280,8 +280,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="skip the optimization study (beyond the paper: optimized trajectories vs the "
                         "baselines, cycle-time study)")
     p.add_argument("--no-closed-loop", dest="closed_loop", action="store_false",
-                   help="skip the closed-loop study (the optimized designs refined and compared under a servo "
-                        "loop at 15 and 40 Hz; about half of the full run's time)")
+                   help="skip the closed-loop study (designs refined with a servo in the loop, compared under it "
+                        "at 15 and 40 Hz)")
+    p.add_argument("--refine", action="store_true",
+                   help="in the closed-loop study, refine the optimization studies' designs with the servo in the "
+                        "loop in this run (40 steps per payload and bandwidth, about an hour on 2 cores) instead "
+                        "of evaluating the designs shipped in examples/designs")
     p.add_argument("--quick", action="store_true",
                    help="coarser grids and fewer points, no convergence or full-model checks: a fast "
                         "smoke run (not for publication)")
@@ -372,7 +376,7 @@ def main(argv=None) -> int:
             from jaxflex.experiments import reproduce
 
             reproduce.run(args.out, quick=args.quick, vibration=args.vibration, optimize=args.optimize,
-                          closed_loop=args.closed_loop, fresh=args.fresh)
+                          closed_loop=args.closed_loop, fresh=args.fresh, refine=args.refine)
     except ValueError as err:
         print(f"jaxflex {args.command}: error: {_one_line(err)}", file=sys.stderr)
         return 2

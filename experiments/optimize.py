@@ -394,6 +394,10 @@ def closed_loop_text(rec: dict) -> str:
             models = f" on {len(rnd['training_models'])} models" if rnd.get("training_models") else ""
             parts.append(f"refined with the servo in the loop at fc {c['fc']:g} Hz{which}: {rnd['steps_run']} steps"
                          f"{models}, objective {h[0][1]:.3f} -> {min(r[1] for r in h):.3f}")
+    if "shipped" in rec:
+        sh = rec["shipped"]
+        parts.append(f"the optimized design is examples/designs/{sh['name']}, refined with the servo in the loop at "
+                     f"fc {sh['trained_at_hz']:g} Hz by jaxflex optimize --servo (evaluated here, not refined again)")
     head = ["trajectory", "perfect [um]", "nominal [um]", "box worst [um]", "box p95 [um]", "x best paper (nominal)",
             "x best paper (worst)", "torque [N m]"]
     for fc, rows in rec["fcs"].items():

@@ -158,15 +158,24 @@ def closed_loop_section(res: dict) -> str:
              "PD servo instead (docs/conventions.md#servo): rotor inertia 0.01 kg m^2, 8 kHz sample and hold, "
              "gains from the bandwidth fc by the default rule. The paper's combinations and the baselines get the "
              "rigid feedforward, which is what a controller with a rigid model computes. The optimized design gets "
-             "the flexible feedforward of the nominal model, advanced by half a sample period. At each fc the "
-             "design is refined with that servo in the loop, starting from the perfect controller's design. It is "
-             "then compared on the nominal robot, on random models of the robot's box and the controller's box "
+             "the flexible feedforward of the nominal model, advanced by half a sample period. The design at each "
+             "fc was refined with a servo in the loop, starting from the perfect controller's design: either one of "
+             "the designs shipped in `examples/designs` (refined there by `jaxflex optimize --servo`, with the "
+             "command and its settings in that directory's README; evaluated here, not refined again), or, with "
+             "`jaxflex reproduce --refine`, the optimization study's design refined in this run with that servo. "
+             "It is compared on the nominal robot, on random models of the robot's box and the controller's box "
              "(fc +-20 %, rate 4-16 kHz, rotor +-10 %) and on their 32 corners. Loops that the sampled PD makes "
              "unstable (the spectral-radius check) are counted and left out, since no trajectory repairs them.", ""]
     for case in res["cases"]:
         d = case["dir"]
         for fc, st in case["studies"].items():
-            lines += [f"### {case_label(case['payload'], case['tf'])}, trained at fc {fc} Hz", "", "```",
+            if "shipped" in st:
+                sh = st["shipped"]
+                title = (f"fc {fc} Hz, the shipped design `examples/designs/{sh['name']}` (refined at "
+                         f"{sh['trained_at_hz']:g} Hz)")
+            else:
+                title = f"refined at fc {fc} Hz in this run"
+            lines += [f"### {case_label(case['payload'], case['tf'])}: {title}", "", "```",
                       closed_loop_text(st), "```", ""]
         lines += [f"![residual against fc]({d}/residual_vs_fc.png)", "",
                   f"*Dwell residual on the nominal robot against the servo's bandwidth ({d}). The solid lines are "

@@ -24,22 +24,22 @@ from .report import case_label
 
 
 def run(out: str = "results", quick: bool = False, vibration: bool = True, optimize: bool = True,
-        closed_loop: bool = True, fresh: bool = False) -> dict:
+        closed_loop: bool = True, fresh: bool = False, refine: bool = False) -> dict:
     """``jaxflex reproduce``: ``compute`` every section into ``out``, then render REPORT.md from the
     results (``experiments.report.render``) and write it with the run's provenance. Returns the
     sections' results."""
     started = time.time()
-    results = compute(out, quick, vibration, optimize, closed_loop, fresh)
+    results = compute(out, quick, vibration, optimize, closed_loop, fresh, refine)
     out = Path(out)
-    prov = provenance({"out": str(out), "quick": quick}, started)
+    prov = provenance({"out": str(out), "quick": quick, "refine": refine}, started)
     write_text(out / "REPORT.md", report.render(results, out, quick, prov, time.time() - started))
-    write_json(out / "provenance.json", provenance({"out": str(out), "quick": quick}, started))
+    write_json(out / "provenance.json", prov)
     print(f"report: {out / 'REPORT.md'}")
     return results
 
 
 def compute(out: str = "results", quick: bool = False, vibration: bool = True, optimize: bool = True,
-            closed_loop: bool = True, fresh: bool = False) -> dict:
+            closed_loop: bool = True, fresh: bool = False, refine: bool = False) -> dict:
     """Compute every section in order, each writing its JSON/CSV/PNG into ``out``; returns the
     sections' results (``results["kinematics_default"]``, ``"modes"``, ``"vibration"``,
     ``"convergence"``, ``"optimize"``). ``vibration`` (default on) runs the simulation study of the
@@ -47,7 +47,9 @@ def compute(out: str = "results", quick: bool = False, vibration: bool = True, o
     cross-check against the full nonlinear model. ``optimize`` (default on) adds the optimization
     studies (beyond the paper): the optimized designs against the baselines for both paper cases
     (resumable: checkpoints in DIR/optimize_*) and the cycle-time study; with ``closed_loop``
-    (default on) the designs are then refined and compared under a servo loop (``_closed_loop``). A section whose JSON is
+    (default on) designs refined with a servo in the loop are compared under it (``_closed_loop``:
+    the designs shipped in examples/designs, or with ``refine`` the studies' designs refined again
+    in this run). A section whose JSON is
     there from a run of the same code (``io.code_digest``) and mode is loaded instead of computed, and
     the optimizers resume from their checkpoints only after a run of the same code
     (``io.prepare_resume``); ``fresh``: every section is computed again."""
@@ -121,7 +123,7 @@ def compute(out: str = "results", quick: bool = False, vibration: bool = True, o
         tracker.next()
         print("== closed-loop study (beyond the paper: a servo loop instead of the perfect controller)", flush=True)
         release_compiled()
-        results["closed_loop"] = _closed_loop(out, key, results["optimize"])
+        results["closed_loop"] = _closed_loop(out, key, results["optimize"], refine)
     tracker.next()
     return results
 
@@ -233,12 +235,16 @@ CLOSED_LOOP_STEPS = 40      # optimizer steps of each design's refinement with t
 CLOSED_LOOP_SAMPLES = 20    # random models of both boxes (besides their 32 corners) per comparison
 
 
-def _closed_loop(out: Path, key: dict, opt: dict) -> dict:
-    """The single-payload studies' optimized designs under the servo (``experiments.closed_loop``):
-    at each bandwidth of ``closed_loop.FCS`` the design refined with that servo in the loop and
-    compared with the paper's combinations and the baselines on the robot's and the controller's
-    boxes, then the figure of the nominal residual against the bandwidth. Each case resumes from
-    its JSON; each case runs in a process of its own."""
+def _closed_loop(out: Path, key: dict, opt: dict, refine: bool = False) -> dict:
+    """The single-payload studies' cases under the servo (``experiments.closed_loop``): at each
+    bandwidth of ``closed_loop.FCS`` a design refined with that servo in the loop is compared with the
+    paper's combinations and the baselines on the robot's and the controller's boxes, then the
+    figure of the nominal residual against the bandwidth. The design is the one the repository ships
+    for that payload, cycle time and bandwidth (``closed_loop.shipped_case``; refined at the nearest
+    bandwidth where none was refined at it), or with ``refine``, or for a case without a shipped
+    design, the study's design refined in this run (``closed_loop.reproduce_case``:
+    ``CLOSED_LOOP_STEPS`` steps at each bandwidth, about a quarter of an hour each on 2 cores). Each
+    case resumes from its JSON (only for the same designs); each case runs in a process of its own."""
     from . import closed_loop as cl
 
     res = {"cases": []}
@@ -248,9 +254,21 @@ def _closed_loop(out: Path, key: dict, opt: dict) -> dict:
             continue
         name = f"{rec['payloads'][0]:g}"
         d = out / f"closed_loop_{name}kg"
-        r = resumable(d / "closed_loop.json", key,
-                      lambda: run_isolated_uncached(cl.reproduce_case, record=rec, out_dir=str(d), steps=CLOSED_LOOP_STEPS,
-                                           samples=CLOSED_LOOP_SAMPLES), f"closed loop {name} kg")
+        designs = {} if refine else cl.shipped_designs(rec["payloads"][0], rec["tf"])
+        if designs:
+            shipped = {f"{fc:g}": cl.shipped_design(p) for fc, p in designs.items()}
+            r = resumable(d / "closed_loop.json", {**key, "shipped": shipped},
+                          lambda: run_isolated_uncached(cl.shipped_case, record=rec, out_dir=str(d),
+                                                        samples=CLOSED_LOOP_SAMPLES, designs=designs),
+                          f"closed loop {name} kg (shipped designs)")
+        else:
+            if not refine:
+                print(f"  no shipped design for {name} kg (examples/designs): the study's design is refined "
+                      "with the servo in the loop", flush=True)
+            r = resumable(d / "closed_loop.json", {**key, "refined": CLOSED_LOOP_STEPS},
+                          lambda: run_isolated_uncached(cl.reproduce_case, record=rec, out_dir=str(d),
+                                                        steps=CLOSED_LOOP_STEPS, samples=CLOSED_LOOP_SAMPLES),
+                          f"closed loop {name} kg")
         res["cases"].append({"dir": d.relative_to(out).as_posix(), "payload": rec["payloads"][0], "tf": rec["tf"],
                              **r})
         release_compiled()

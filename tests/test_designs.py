@@ -59,3 +59,24 @@ def test_a_shipped_design_is_what_init_starts_from_and_its_export_fits_the_model
     static = np.asarray(rigid_torques(robot.replace(rotor_inertia=ctrl["rotor_inertia"]), rows[0, 3:5],
                                       np.zeros(2), np.zeros(2)))
     np.testing.assert_allclose(rows[0, 9:11], static, rtol=0.02, atol=0.02 * np.max(np.abs(static)))
+
+
+def test_reproduce_finds_the_shipped_design_of_each_case_and_bandwidth(tmp_path):
+    """``jaxflex reproduce`` evaluates the shipped designs: each paper case's, keyed by the bandwidth
+    it was refined at, none for a payload or cycle time without one; a directory without a refined
+    design (a perfect-controller run) is passed over, and a missing directory gives none."""
+    from jaxflex.experiments import closed_loop as cl
+
+    assert {fc: p.name for fc, p in cl.shipped_designs(6.0, 0.43).items()} == {15.0: "6kg_0.43s_15hz"}
+    assert {fc: p.name for fc, p in cl.shipped_designs(0.1, 0.3).items()} == {15.0: "0.1kg_0.3s_15hz",
+                                                                           40.0: "0.1kg_0.3s_40hz"}
+    assert cl.shipped_designs(6.0, 0.3) == {} and cl.shipped_designs(2.0, 0.43) == {}
+    assert cl.shipped_designs(6.0, 0.43, tmp_path / "none") == {}
+    rec = json.loads((DESIGNS / "6kg_0.43s_15hz" / "optimize.json").read_text())
+    (tmp_path / "plain").mkdir()
+    (tmp_path / "plain" / "optimize.json").write_text(json.dumps({k: v for k, v in rec.items() if k != "closed_loop"}))
+    assert cl.shipped_designs(6.0, 0.43, tmp_path) == {}
+    sh = cl.shipped_design(DESIGNS / "6kg_0.43s_15hz")
+    assert (sh["trained_at_hz"], sh["blend"], sh["order"]) == (15.0, rec["design"]["path"]["blend"],
+                                                               rec["design"]["order"])
+    assert sh["design"] == rec["closed_loop"]["refined"]["design"]
