@@ -80,3 +80,39 @@ def test_reproduce_finds_the_shipped_design_of_each_case_and_bandwidth(tmp_path)
     assert (sh["trained_at_hz"], sh["blend"], sh["order"]) == (15.0, rec["design"]["path"]["blend"],
                                                                rec["design"]["order"])
     assert sh["design"] == rec["closed_loop"]["refined"]["design"]
+
+
+def test_reproduce_evaluates_at_each_bandwidth_the_design_refined_there_or_at_the_nearest(tmp_path, monkeypatch):
+    """The closed-loop section's wiring (``closed_loop.shipped_case``), the studies themselves replaced
+    by a stand-in: at 15 Hz the 6 kg design refined at 15 Hz is evaluated under a 15 Hz servo; at
+    40 Hz, where none was refined, the same design under a 40 Hz servo (its controller's rate, rotor
+    and feedforward), never refined again (no steps); the record names it, and the report says so."""
+    from jaxflex.experiments import closed_loop as cl
+    from jaxflex.experiments.report import closed_loop_section
+
+    calls = []
+
+    def study(robot, cycle, payload, tf, dwell, grid, x, law, controller, **kw):
+        calls.append((payload, tf, controller, kw["steps"], kw["fcs"], np.asarray(x.coef).tolist(), kw["blend"]))
+        row = {"perfect_um": 1.0, "nominal_um": 1.0, "box_worst_um": 1.0, "p95_um": 1.0, "max_torque_nm": 1.0,
+               "ratio_best_paper_nominal": 1.0, "ratio_best_paper_worst": 1.0, "box_unstable": 0, "box_models": 1}
+        return {"controller": controller._asdict(), "samples": kw["samples"], "corners": kw["corners"],
+                "paper": {f"{controller.fc:g}": {"best": "polar/poly7"}}, "fcs": {f"{controller.fc:g}": {"optimized": row}}}
+
+    monkeypatch.setattr(cl, "closed_loop_study", study)
+    monkeypatch.setattr(cl, "bandwidth_sweep", lambda record, closed, fcs: {"fcs": list(fcs), "dwell_residual_um": {}})
+    monkeypatch.setattr(cl, "figure", lambda *a: None)
+    monkeypatch.setattr("jaxflex.experiments.io.save_figure", lambda fig, path: None)
+    rec = json.loads((DESIGNS / "6kg_0.43s_15hz" / "optimize.json").read_text())
+    res = cl.shipped_case({"payloads": [6.0], "tf": 0.43, "first_mode_hz": [58.0]}, str(tmp_path), samples=3,
+                          designs=cl.shipped_designs(6.0, 0.43), fcs=(15.0, 40.0), figure_fcs=(15.0,))
+    refined = rec["closed_loop"]["refined"]["design"]["coef"]
+    c = rec["closed_loop"]["controller"]
+    assert [(k[2].fc, k[2].rate, k[2].rotor, k[2].feedforward) for k in calls] == [
+        (15.0, c["rate"], c["rotor"], c["feedforward"]), (40.0, c["rate"], c["rotor"], c["feedforward"])]
+    assert all(k[:2] == (6.0, 0.43) and k[3] == 0 and k[4] == (k[2].fc,) and k[5] == refined
+               and k[6] == rec["design"]["path"]["blend"] for k in calls)
+    assert [st["shipped"]["trained_at_hz"] for st in res["studies"].values()] == [15.0, 15.0]
+    text = closed_loop_section({"cases": [{"dir": "closed_loop_6kg", "payload": 6.0, "tf": 0.43, **res}]})
+    assert "fc 40 Hz, the shipped design `examples/designs/6kg_0.43s_15hz` (refined at 15 Hz)" in text
+    assert "evaluated here, not refined again" in text
