@@ -67,7 +67,8 @@ def test_reproduce_finds_the_shipped_design_of_each_case_and_bandwidth(tmp_path)
     design (a perfect-controller run) is passed over, and a missing directory gives none."""
     from jaxflex.experiments import closed_loop as cl
 
-    assert {fc: p.name for fc, p in cl.shipped_designs(6.0, 0.43).items()} == {15.0: "6kg_0.43s_15hz"}
+    assert {fc: p.name for fc, p in cl.shipped_designs(6.0, 0.43).items()} == {15.0: "6kg_0.43s_15hz",
+                                                                          40.0: "6kg_0.43s_40hz"}
     assert {fc: p.name for fc, p in cl.shipped_designs(0.1, 0.3).items()} == {15.0: "0.1kg_0.3s_15hz",
                                                                            40.0: "0.1kg_0.3s_40hz"}
     assert cl.shipped_designs(6.0, 0.3) == {} and cl.shipped_designs(2.0, 0.43) == {}
@@ -84,8 +85,8 @@ def test_reproduce_finds_the_shipped_design_of_each_case_and_bandwidth(tmp_path)
 
 def test_reproduce_evaluates_at_each_bandwidth_the_design_refined_there_or_at_the_nearest(tmp_path, monkeypatch):
     """The closed-loop section's wiring (``closed_loop.shipped_case``), the studies themselves replaced
-    by a stand-in: at 15 Hz the 6 kg design refined at 15 Hz is evaluated under a 15 Hz servo; at
-    40 Hz, where none was refined, the same design under a 40 Hz servo (its controller's rate, rotor
+    by a stand-in: given only the 6 kg design refined at 15 Hz, at 15 Hz it is evaluated under a
+    15 Hz servo; at 40 Hz, where none was refined, the same design under a 40 Hz servo (its controller's rate, rotor
     and feedforward), never refined again (no steps); the record names it, and the report says so."""
     from jaxflex.experiments import closed_loop as cl
     from jaxflex.experiments.report import closed_loop_section
@@ -105,7 +106,7 @@ def test_reproduce_evaluates_at_each_bandwidth_the_design_refined_there_or_at_th
     monkeypatch.setattr("jaxflex.experiments.io.save_figure", lambda fig, path: None)
     rec = json.loads((DESIGNS / "6kg_0.43s_15hz" / "optimize.json").read_text())
     res = cl.shipped_case({"payloads": [6.0], "tf": 0.43, "first_mode_hz": [58.0]}, str(tmp_path), samples=3,
-                          designs=cl.shipped_designs(6.0, 0.43), fcs=(15.0, 40.0), figure_fcs=(15.0,))
+                          designs={15.0: DESIGNS / "6kg_0.43s_15hz"}, fcs=(15.0, 40.0), figure_fcs=(15.0,))
     refined = rec["closed_loop"]["refined"]["design"]["coef"]
     c = rec["closed_loop"]["controller"]
     assert [(k[2].fc, k[2].rate, k[2].rotor, k[2].feedforward) for k in calls] == [
