@@ -60,8 +60,7 @@ def bandwidth_sweep(record: dict, closed: dict, fcs=FIGURE_FCS, progress: bool =
         x = corners_design(closed["refined"]["design"])
         law = shaped(x.coef, law.order, name="optimized")
     elif "shipped" in closed:
-        x = corners_design(closed["shipped"]["design"])
-        law, blend = shaped(x.coef, closed["shipped"]["order"], name="optimized"), closed["shipped"]["blend"]
+        x, law, blend = shipped_trajectory(closed["shipped"])
     c = closed["controller"]
     first = next(iter(closed["paper"]))
     b, p = closed["paper"][first]["best"].split("/")
@@ -162,6 +161,12 @@ def shipped_design(directory) -> dict:
             "blend": blend, "order": order, "design": cl["refined"]["design"]}
 
 
+def shipped_trajectory(shipped: dict):
+    """(Design, shaped law, blend family) of a ``shipped_design`` record."""
+    x = corners_design(shipped["design"])
+    return x, shaped(x.coef, shipped["order"], name="optimized"), shipped["blend"]
+
+
 def shipped_case(record: dict, out_dir: str, samples: int, designs: dict, fcs=FCS, figure_fcs=FIGURE_FCS,
                  corners: bool = True) -> dict:
     """One case of reproduce's closed-loop section with the shipped designs (a module-level function:
@@ -171,9 +176,9 @@ def shipped_case(record: dict, out_dir: str, samples: int, designs: dict, fcs=FC
     bandwidth) beside the paper's combinations and the baselines on ``samples`` random models and
     (``corners``) the 32 corners of the boxes; then the nominal residual at ``figure_fcs`` and its
     figure, written to ``out_dir/residual_vs_fc.png``. ``record``: the optimization study's record of
-    the same payload and cycle time (its first mode shapes the ZV/ZVD baselines); ``designs``:
-    ``shipped_designs`` of that case (fc [Hz] -> directory). Returns {"studies": fc -> record, each
-    with its design under "shipped", "sweep": ``bandwidth_sweep``}."""
+    the same payload and cycle time (its first mode shapes the ZV/ZVD baselines); ``designs``: the
+    ``shipped_design`` records of that case's ``shipped_designs`` (fc [Hz] -> record). Returns
+    {"studies": fc -> record, each with its design under "shipped", "sweep": ``bandwidth_sweep``}."""
     from .io import save_figure
     from .report import case_label
 
@@ -184,14 +189,12 @@ def shipped_case(record: dict, out_dir: str, samples: int, designs: dict, fcs=FC
     grid = default_grid(robot.replace(payload=payload), [tf], 0.1)
     studies = {}
     for fc in fcs:
-        trained = min(designs, key=lambda f: (abs(f - fc), f))      # refined at fc, else the nearest
-        shipped = shipped_design(designs[trained])
-        x = corners_design(shipped["design"])
+        shipped = designs[min(designs, key=lambda f: (abs(f - fc), f))]    # refined at fc, else the nearest
+        x, law, blend = shipped_trajectory(shipped)
         c = shipped["controller"]
-        st = closed_loop_study(robot, cycle, payload, tf, 0.1, grid, x,
-                               shaped(x.coef, shipped["order"], name="optimized"),
+        st = closed_loop_study(robot, cycle, payload, tf, 0.1, grid, x, law,
                                Controller(fc, c["rate"], c["rotor"], c["feedforward"]), fcs=(fc,), steps=0,
-                               samples=samples, corners=corners, blend=shipped["blend"], order=shipped["order"],
+                               samples=samples, corners=corners, blend=blend, order=shipped["order"],
                                first_mode_hz=record["first_mode_hz"][0], progress=True)
         studies[f"{fc:g}"] = {**st, "shipped": shipped}
     first = studies[f"{fcs[0]:g}"]

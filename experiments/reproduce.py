@@ -256,10 +256,10 @@ def _closed_loop(out: Path, key: dict, opt: dict, refine: bool = False) -> dict:
         d = out / f"closed_loop_{name}kg"
         designs = {} if refine else cl.shipped_designs(rec["payloads"][0], rec["tf"])
         if designs:
-            shipped = {f"{fc:g}": cl.shipped_design(p) for fc, p in designs.items()}
-            r = resumable(d / "closed_loop.json", {**key, "shipped": shipped},
+            shipped = {fc: cl.shipped_design(p) for fc, p in designs.items()}
+            r = resumable(d / "closed_loop.json", {**key, "shipped": {f"{fc:g}": v for fc, v in shipped.items()}},
                           lambda: run_isolated_uncached(cl.shipped_case, record=rec, out_dir=str(d),
-                                                        samples=CLOSED_LOOP_SAMPLES, designs=designs),
+                                                        samples=CLOSED_LOOP_SAMPLES, designs=shipped),
                           f"closed loop {name} kg (shipped designs)")
         else:
             if not refine:

@@ -106,7 +106,7 @@ def test_reproduce_evaluates_at_each_bandwidth_the_design_refined_there_or_at_th
     monkeypatch.setattr("jaxflex.experiments.io.save_figure", lambda fig, path: None)
     rec = json.loads((DESIGNS / "6kg_0.43s_15hz" / "optimize.json").read_text())
     res = cl.shipped_case({"payloads": [6.0], "tf": 0.43, "first_mode_hz": [58.0]}, str(tmp_path), samples=3,
-                          designs={15.0: DESIGNS / "6kg_0.43s_15hz"}, fcs=(15.0, 40.0), figure_fcs=(15.0,))
+                          designs={15.0: cl.shipped_design(DESIGNS / "6kg_0.43s_15hz")}, fcs=(15.0, 40.0), figure_fcs=(15.0,))
     refined = rec["closed_loop"]["refined"]["design"]["coef"]
     c = rec["closed_loop"]["controller"]
     assert [(k[2].fc, k[2].rate, k[2].rotor, k[2].feedforward) for k in calls] == [
