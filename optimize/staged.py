@@ -24,7 +24,10 @@ How it works, for parameters theta:
 
 The models run side by side on the host's cores (``jaxflex.runtime.threads.host_map``). Each model's
 programs and sum are the same whatever the threads, so the result does not depend on them. A
-thread holds one model's stored forward pass at a time.
+thread holds one model's stored forward pass at a time. The first run of an objective's programs
+starts with one model alone (its programs compile once, not once per thread); once a run has
+compiled them all, every later one (an optimizer's steps) runs all its models side by side from
+the start.
 
 The same traversal of the stages (``_Chain``) runs the programs, times them one at a time
 (``stage_times``) and compiles them ahead of time from the shapes alone (``Staged.compile_ahead``).
@@ -170,6 +173,7 @@ def _at(tree, k: int):
 
 
 _SLICES = LastCall()        # the per-model slices of the last objective's data
+_RAN: dict = {}             # (chain key, gradient) -> compiled.generation() of its last complete run
 
 
 def _slices(objective: DesignObjective, robots, workspaces, scales) -> list:
@@ -224,7 +228,9 @@ def _run(build: str, objective: DesignObjective, params, gradient: bool):
             grads = (row(RESIDUAL_ROW), row(TORQUE_ROW) if over else None)
         return residual, torque, chain.terms, grads
 
-    out = host_map(one, range(k))
+    warm = (_key(build, objective), gradient)        # this run's programs: compiled by an earlier run?
+    out = host_map(one, range(k), first_alone=_RAN.get(warm) != compiled.generation())
+    _RAN[warm] = compiled.generation()
     residuals = jnp.asarray([o[0] for o in out], dtype=jnp.float64)
     torques = jnp.asarray([o[1] for o in out], dtype=jnp.float64)
     value, partials = _combined(residuals, torques, objective.scales, torque_weight=objective.torque_weight,

@@ -151,8 +151,9 @@ def test_release_if_crowded_releases_only_above_its_share_of_the_mapping_limit()
 
 
 def test_host_map_keeps_order_results_and_errors(monkeypatch):
-    """``runtime.threads.host_map`` with several threads equals the sequential loop, item by item, and
-    raises the first failing item's error; JAXFLEX_THREADS is validated."""
+    """``runtime.threads.host_map`` with several threads equals the sequential loop, item by item, with
+    the first item alone or not (``first_alone``), and raises the first failing item's error either
+    way; JAXFLEX_THREADS is validated."""
     from jaxflex.runtime import threads as parallel
 
     f = jax.jit(lambda a: jnp.cumsum(jnp.sin(a * jnp.arange(200.0))))
@@ -160,16 +161,19 @@ def test_host_map_keeps_order_results_and_errors(monkeypatch):
     monkeypatch.setenv("JAXFLEX_THREADS", "3")
     assert parallel.threads() == 3
     threaded = parallel.host_map(f, items)
+    together = parallel.host_map(f, items, first_alone=False)
     monkeypatch.setenv("JAXFLEX_THREADS", "1")
-    assert all(jnp.array_equal(a, f(x)) for a, x in zip(threaded, items))
+    assert len(threaded) == len(together) == len(items)
+    assert all(jnp.array_equal(a, f(x)) and jnp.array_equal(b, f(x)) for a, b, x in zip(threaded, together, items))
     monkeypatch.setenv("JAXFLEX_THREADS", "2")
 
     def bad(a):
         if a >= 3:
             raise ValueError(f"item {a:g}")
         return f(a)
-    with pytest.raises(ValueError, match="item 3"):
-        parallel.host_map(bad, items)
+    for first_alone in (True, False):
+        with pytest.raises(ValueError, match="item 3"):
+            parallel.host_map(bad, items, first_alone=first_alone)
     monkeypatch.setenv("JAXFLEX_THREADS", "0")
     with pytest.raises(ValueError, match="JAXFLEX_THREADS"):
         parallel.threads()

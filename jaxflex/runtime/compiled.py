@@ -59,9 +59,11 @@ def release_compiled() -> None:
     (``heap.trim``: the trimming thread acts only when the resident size grows, and what a section
     freed would otherwise stay resident while a child process runs the next one). Later calls
     recompile, or load from the persistent compilation cache when it is enabled (the CLI enables it)."""
+    global _GENERATION
     with _AHEAD_LOCK:
         _AHEAD.clear()
         _AHEAD_OUT.clear()
+        _GENERATION += 1
     jax.clear_caches()
     gc.collect()
     heap.trim()
@@ -88,6 +90,13 @@ _AHEAD_OUT: dict = {}               # signature -> the program's output shapes (
 _POOLS: dict = {}                   # name -> ThreadPoolExecutor, created on first use
 _POOLS_LOCK = threading.Lock()
 _CHAINS: dict = {}                  # key -> Future of a chain of compilations (submit_chain)
+_GENERATION = 0                     # how often release_compiled has dropped the programs
+
+
+def generation() -> int:
+    """A count of ``release_compiled`` calls: a program compiled (or run) at one generation is still
+    compiled while the generation is the same."""
+    return _GENERATION
 
 
 def _pool(name: str) -> ThreadPoolExecutor:

@@ -39,16 +39,20 @@ def threads() -> int:
     return max(1, min(os.cpu_count() or 1, MAX_THREADS))
 
 
-def host_map(fn: Callable, items: Sequence, parallel: bool = True) -> list:
+def host_map(fn: Callable, items: Sequence, parallel: bool = True, first_alone: bool = True) -> list:
     """[fn(x) for x in items], each result ready (``jax.block_until_ready``), computed by up to
-    ``threads()`` threads (one with ``parallel=False``). The first item runs alone, so that a
-    program compiles once, not once per thread. Exceptions propagate as in the sequential loop (the
-    first failing item's)."""
+    ``threads()`` threads (one with ``parallel=False``). With ``first_alone`` the first item runs
+    alone, so that a program compiles once, not once per thread; a caller whose programs are
+    compiled already passes False, and every item runs side by side from the start. Exceptions
+    propagate as in the sequential loop (the first failing item's)."""
     items = list(items)
     run = lambda x: jax.block_until_ready(fn(x))
     n = threads() if parallel else 1
     if n == 1 or len(items) < 2:
         return [run(x) for x in items]
+    if not first_alone:
+        with ThreadPoolExecutor(max_workers=min(n, len(items))) as pool:
+            return list(pool.map(run, items))
     first = run(items[0])
     with ThreadPoolExecutor(max_workers=min(n, len(items) - 1)) as pool:
         return [first] + list(pool.map(run, items[1:]))
