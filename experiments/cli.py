@@ -10,8 +10,8 @@ import sys
 import traceback
 
 from jaxflex.names import DESIGN_BLENDS, PRESETS
-from jaxflex.optimize.config import (ROBUST_POWER, SCENARIO_POOL, SCENARIOS, SERVO_LEARNING_RATE, SERVO_TRAININGS,
-                                     TRAINING_SETS, StudyConfig)
+from jaxflex.optimize.config import (ROBUST_POWER, SCENARIO_POOL, SCENARIOS, SERVO_LEARNING_RATE, SERVO_OBJECTIVES,
+                                     SERVO_TRAININGS, TRAINING_SETS, StudyConfig)
 from jaxflex.uncertainty import Box
 
 STUDY = StudyConfig()       # the defaults of ``jaxflex optimize`` (this module imports no JAX)
@@ -236,6 +236,11 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--servo-power", type=float, default=ROBUST_POWER, metavar="P",
                    help="order of the power mean over the training models (larger: closer to the worst "
                         "model; default: %(default)s)")
+    g.add_argument("--servo-objective", choices=SERVO_OBJECTIVES, default="dwell",
+                   help="what the refinement minimizes on each model: 'dwell', the dwell residual's amplitude; "
+                        "'energy+dwell', with the vibration energy at tf beside it, as the perfect controller's "
+                        "optimizer (misleading under a servo, which keeps acting after tf: "
+                        "docs/conventions.md#servo; default: %(default)s)")
     g.add_argument("--servo-lr", type=float, default=SERVO_LEARNING_RATE, metavar="LR",
                    help="Adam learning rate of the refinement (default: %(default)s)")
     g.add_argument("--servo-rounds", type=int, default=1, metavar="N",
@@ -364,6 +369,7 @@ def main(argv=None) -> int:
                               "fcs": tuple(args.servo_fcs), "corners": args.servo_corners,
                               "scenarios": args.servo_scenarios, "training": args.servo_training,
                               "power": args.servo_power, "learning_rate": args.servo_lr,
+                              "objective": args.servo_objective,
                               "rounds": args.servo_rounds}
                 optimize.run(setup, tuple(payloads), args.tf, out=args.out, json_path=args.json,
                              verify=args.verify, config=dataclasses.replace(config, free_path=args.free_path),

@@ -18,7 +18,7 @@ import numpy as np
 
 from jaxflex import checks
 from jaxflex.model_sets import build_model
-from jaxflex.optimize.config import SERVO_TRAININGS, StudyConfig
+from jaxflex.optimize.config import SERVO_OBJECTIVES, SERVO_TRAININGS, StudyConfig
 from jaxflex.optimize.evaluation import nominal_accuracy
 from jaxflex.export import DEFAULT_RATE_HZ as CSV_RATE_HZ, write_controller_files
 from jaxflex.optimize.cycle_time import TORQUE_TOL
@@ -365,7 +365,7 @@ def closed_loop_section(study, robot, cycle, payload: float, tf: float, options:
                        blend=config.train.blend, order=order, first_mode_hz=study.first_mode_hz[0],
                        ruckig=config.ruckig, scenarios=options.get("scenarios", SCENARIOS),
                        training=options.get("training", "fixed"), power=options.get("power", ROBUST_POWER),
-                       rounds=options.get("rounds", 1),
+                       rounds=options.get("rounds", 1), objective=options.get("objective", "dwell"),
                        learning_rate=options.get("learning_rate", SERVO_LEARNING_RATE),
                        progress=True)
     path, law = study.paths["optimized"], study.candidates["optimized"].law
@@ -388,12 +388,13 @@ def closed_loop_text(rec: dict) -> str:
              "controller's boxes):"]
     if "refined" in rec:
         ref = rec["refined"]
+        objective = ref.get("objective", "energy+dwell")      # records written before the choice existed
         for k, rnd in enumerate(ref.get("rounds", [ref])):
             h = rnd["history"]
             which = f", round {k + 1}" if len(ref.get("rounds", ())) > 1 else ""
             models = f" on {len(rnd['training_models'])} models" if rnd.get("training_models") else ""
             parts.append(f"refined with the servo in the loop at fc {c['fc']:g} Hz{which}: {rnd['steps_run']} steps"
-                         f"{models}, objective {h[0][1]:.3f} -> {min(r[1] for r in h):.3f}")
+                         f"{models}, objective ({objective}) {h[0][1]:.3f} -> {min(r[1] for r in h):.3f}")
     if "shipped" in rec:
         sh = rec["shipped"]
         parts.append(f"the optimized design is examples/designs/{sh['name']}, refined with the servo in the loop at "
@@ -416,14 +417,16 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, out=None, verify=False, 
     """Run the study (``optimize_design`` with ``config``) and return its JSON record; with ``out``
     also write the checkpoint (resumable), ``trajectory.csv`` and ``controller.json``
     (``jaxflex.export``, at ``export_rate`` [Hz]), the figures and ``optimize.json`` there. With
-    ``closed_loop`` (fc, rate, rotor_inertia, feedforward, steps, samples, fcs, corners, scenarios) the design
+    ``closed_loop`` (fc, rate, rotor_inertia, feedforward, steps, samples, fcs, corners, scenarios, training,
+    power, rounds, learning_rate, objective) the design
     is then refined and compared under the servo (``optimize.closed_loop.closed_loop_study``, the
     record's "closed_loop"; the first payload), and the export is the refined design's for that
     servo."""
     started = time.time()
     if closed_loop is not None:          # before the perfect controller's study: a bad count fails now
         extra = sorted(set(closed_loop) - {"fc", "rate", "rotor_inertia", "feedforward", "steps", "samples", "fcs",
-                                           "corners", "scenarios", "training", "power", "rounds", "learning_rate"})
+                                           "corners", "scenarios", "training", "power", "rounds", "learning_rate",
+                                           "objective"})
         if extra:
             raise ValueError(f"the closed-loop study sets up its controller by the default gain rule from fc, the "
                              f"rate, the rotor inertia and the feedforward kind; it does not take {', '.join(extra)} "
@@ -437,6 +440,9 @@ def compute(preset="default", payloads=(6.0,), tf=0.43, out=None, verify=False, 
         if closed_loop.get("training", "fixed") not in SERVO_TRAININGS:
             raise ValueError(f"servo training must be one of {', '.join(SERVO_TRAININGS)}, "
                              f"got {closed_loop['training']!r}")
+        if closed_loop.get("objective", "dwell") not in SERVO_OBJECTIVES:
+            raise ValueError(f"servo objective must be one of {', '.join(SERVO_OBJECTIVES)}, "
+                             f"got {closed_loop['objective']!r}")
     robot, cycle = robot_and_cycle(preset)
     ckpt = None
     if out:

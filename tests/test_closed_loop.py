@@ -79,6 +79,37 @@ def small():
     return robot, tf, dwell, default_grid(robot, [tf], dwell), x0, which
 
 
+def test_the_closed_loop_objective_weighs_the_dwell_amplitude_alone_or_with_the_energy():
+    """``closed_loop_scales``: with "dwell" the objective is the log of the power mean of A_k / A_ref
+    (A the mean square dwell amplitude, A_ref = a^2 / 2 for the reference's residual a), 0 for the
+    reference's own residual, and neither it nor its gradient depends on the energy at tf; with
+    "energy+dwell" it is the perfect controller's residual (E_k / E_ref + A_k / A_ref) / 2. To
+    1e-14 relative: the same arithmetic in another order."""
+    import jax
+    import jax.numpy as jnp
+    from jaxflex.metrics import Terms
+    from jaxflex.optimize.objective import combine
+
+    ref = {"residual_energy": np.array([2e-8]), "dwell_residual_mm": np.array([1e-3])}
+    a_ref, e_ref = (1e-6) ** 2 / 2, 2e-8
+    dwell_ms = jnp.asarray([a_ref, 0.01 * a_ref, 4 * a_ref])
+    energy = jnp.asarray([5e-8, 1e-9, 3e-7])
+    terms = Terms(energy=energy, dwell_ms=dwell_ms, torque=jnp.full(3, 10.0), metrics={})
+    p = 8.0
+    mean = lambda r: np.mean(np.asarray(r) ** p) ** (1 / p)
+    dwell = cl.closed_loop_scales(ref, 3, 20.0, "dwell")
+    np.testing.assert_allclose(float(combine(terms, dwell, power=p)), np.log(mean(dwell_ms / a_ref)), rtol=1e-14)
+    alike = Terms(energy=energy, dwell_ms=jnp.full(3, a_ref), torque=jnp.full(3, 10.0), metrics={})
+    assert abs(float(combine(alike, dwell, power=p))) < 1e-14
+    g = jax.grad(lambda t: combine(t, dwell, power=p))(terms)
+    assert np.all(np.asarray(g.energy) == 0.0) and np.all(np.asarray(g.dwell_ms) > 0)
+    both = cl.closed_loop_scales(ref, 3, 20.0, "energy+dwell")
+    np.testing.assert_allclose(float(combine(terms, both, power=p)),
+                               np.log(mean((energy / e_ref + dwell_ms / a_ref) / 2)), rtol=1e-14)
+    with pytest.raises(ValueError, match="objective must be one of"):
+        cl.closed_loop_scales(ref, 3, 20.0, "energy")
+
+
 @pytest.mark.slow
 def test_the_closed_loop_objective_is_the_engines_closed_loop_and_its_gradient_the_finite_differences(small):
     """The design objective with the servo in the loop (flexible feedforward of the nominal model,
@@ -130,7 +161,7 @@ def test_the_closed_loop_report_and_figure_render_a_study_record(tmp_path):
              "fcs": {"40": {"optimized": row(0.25, 0.46), "polar/poly7 (best paper)": row(1.08, 1.74)}}}
     text = closed_loop_section({"cases": [{"dir": "closed_loop_6kg", "payload": 6.0, "tf": 0.43,
                                            "studies": {"40": study}}]})
-    assert "2 of the 5 models' loops unstable" in text and "objective 1.000 -> -1.000" in text
+    assert "2 of the 5 models' loops unstable" in text and "objective (energy+dwell) 1.000 -> -1.000" in text
     assert "| optimized " in text and "closed_loop_6kg/residual_vs_fc.png" in text
     sweep = {"fcs": [15.0, 40.0], "dwell_residual_um": {"optimized": [1.3, 0.25], "polar/poly7": [9.5, 1.08]}}
     fig = exp.figure(sweep, study, "6 kg, 0.43 s")
