@@ -262,7 +262,7 @@ def closed_loop_scales(reference: dict, k: int, torque_bound: float, objective: 
     controller the vibration energy at tf fixes the residual vibration of the dwell; under a servo it
     does not: the loop keeps acting after tf and damps the flexible modes' motion. On the box's
     corners at low servo rates the energy at tf of a good design is then up to several times the
-    reference's while its dwell amplitude is a hundredth of it or less, and a refinement that
+    reference's while its dwell residual is a few hundredths of it, and a refinement that
     weighs the energy trades the dwell amplitude, which the comparison measures, for it
     (docs/conventions.md#servo)."""
     from .objective import Scales
@@ -311,11 +311,12 @@ def closed_loop_objective(x0, robot: Robot, cycle: Cycle, tf: float, dwell: floa
     fine = servo_grid(grid, tf, dwell, max(float(s.rate) for s in servos))
     robots = models.robots
     scales = closed_loop_scales(reference, k, torque_bound, objective)
-    objective = DesignObjective(robots, cycle, jnp.asarray(float(tf)), jnp.asarray(float(dwell)), scales,
-                                build_workspaces(robots, cycle, servo=True), servos=trees.stack(servos, dtype=float),
-                                advance=jnp.asarray(float(feedforward_advance(nominal))), grid=fine, blend=blend,
-                                order=order, power=power, controller=0)
-    return objective, encode(cycle, x0), which
+    design_objective = DesignObjective(robots, cycle, jnp.asarray(float(tf)), jnp.asarray(float(dwell)), scales,
+                                       build_workspaces(robots, cycle, servo=True),
+                                       servos=trees.stack(servos, dtype=float),
+                                       advance=jnp.asarray(float(feedforward_advance(nominal))), grid=fine,
+                                       blend=blend, order=order, power=power, controller=0)
+    return design_objective, encode(cycle, x0), which
 
 
 class Controller(NamedTuple):
@@ -389,13 +390,13 @@ def refine(x0, robot: Robot, cycle: Cycle, payload: float, tf: float, dwell: flo
         met = evaluate({"design": trial}, robot.replace(payload=payload), cycle, tf, dwell, grid, controller.fc,
                        candidates, rate=controller.rate, rotor=controller.rotor, progress=progress)["design"]
         which = which + worst_models(met["dwell_residual_mm"], candidates, scenarios, exclude=which)
-    objective, p0, which = closed_loop_objective(x0, robot.replace(payload=payload), cycle, tf, dwell, grid, controller.fc,
-                                          which, reference, torque_bound, feedforward=controller.feedforward,
-                                          rate=controller.rate, rotor=controller.rotor, blend=blend, order=order,
-                                          power=power, objective=objective)
+    design_objective, p0, which = closed_loop_objective(
+        x0, robot.replace(payload=payload), cycle, tf, dwell, grid, controller.fc, which, reference, torque_bound,
+        feedforward=controller.feedforward, rate=controller.rate, rotor=controller.rotor, blend=blend, order=order,
+        power=power, objective=objective)
     config = OptimizerConfig(steps=steps, learning_rate=learning_rate, patience=max(steps, 1), progress=progress,
                              label=f"closed loop fc={controller.fc:g}")
-    result = minimize(objective, p0, (), config, gradient=OneProgram(build="quick"))
+    result = minimize(design_objective, p0, (), config, gradient=OneProgram(build="quick"))
     return jax.tree_util.tree_map(np.asarray, decode(cycle, result.params)), result, which
 
 
