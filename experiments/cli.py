@@ -237,9 +237,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="order of the power mean over the training models (larger: closer to the worst "
                         "model; default: %(default)s)")
     g.add_argument("--servo-objective", choices=SERVO_OBJECTIVES, default="dwell",
-                   help="what the refinement minimizes on each model: 'dwell', the dwell residual's amplitude; "
-                        "'energy+dwell', with the vibration energy at tf beside it, as the perfect controller's "
-                        "optimizer (misleading under a servo, which keeps acting after tf: "
+                   help="what the refinement minimizes on each model: 'dwell', the dwell residual's mean "
+                        "square; 'peak', a smooth maximum of it over the dwell, closer to the reported residual; "
+                        "'energy+dwell', the mean square with the vibration energy at tf beside it, as the "
+                        "perfect controller's optimizer (misleading under a servo, which keeps acting after tf: "
                         "docs/conventions.md#servo; default: %(default)s)")
     g.add_argument("--servo-lr", type=float, default=SERVO_LEARNING_RATE, metavar="LR",
                    help="Adam learning rate of the refinement (default: %(default)s)")

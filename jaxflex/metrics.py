@@ -50,19 +50,34 @@ def metrics(series) -> dict:
     }
 
 
+DWELL_PEAK_POWER = 16     # the order of the power mean over the dwell samples that stands in for their maximum
+
+
 class Terms(NamedTuple):
     """What the objectives read of one run: the vibration energy at tf [J], the mean square dwell
     amplitude |e - e_static|^2 over the dwell [m^2], the peak motor torque |tau| over the motion
-    [N m] and the metrics (dict name -> scalar, ``metrics``)."""
+    [N m], the metrics (dict name -> scalar, ``metrics``) and ``dwell_peak`` [m^2], a smooth maximum
+    of |e - e_static|^2 over the dwell samples (``dwell_peak``; None where terms are made by hand)."""
 
     energy: jax.Array
     dwell_ms: jax.Array
     torque: jax.Array
     metrics: dict
+    dwell_peak: jax.Array | None = None
+
+
+def dwell_peak(amp2, power: int = DWELL_PEAK_POWER):
+    """A smooth maximum of the squared dwell amplitudes ``amp2`` (S,) [m^2]: their power mean of order
+    ``power``, (mean amp2^power)^(1/power). It lies between the mean and the maximum (the square of
+    ``dwell_residual_mm``), within a factor (1/S)^(1/power) of the maximum, and, unlike the maximum, its
+    gradient is spread over the samples near the peak. Computed relative to the maximum (held constant
+    in the derivative, which it cancels from exactly), so that amp2^power cannot underflow."""
+    top = jnp.maximum(jax.lax.stop_gradient(jnp.max(amp2)), jnp.finfo(amp2.dtype).tiny)
+    return top * jnp.mean((amp2 / top) ** power) ** (1.0 / power)
 
 
 def terms(series) -> Terms:
     """The ``Terms`` of one run's ``Series``."""
     amp = series.e_dwell - series.e_static[None]
-    return Terms(series.energy_tf, jnp.mean(jnp.sum(amp * amp, axis=-1)), jnp.max(jnp.abs(series.tau)),
-                 metrics(series))
+    amp2 = jnp.sum(amp * amp, axis=-1)
+    return Terms(series.energy_tf, jnp.mean(amp2), jnp.max(jnp.abs(series.tau)), metrics(series), dwell_peak(amp2))

@@ -264,12 +264,19 @@ def closed_loop_scales(reference: dict, k: int, torque_bound: float, objective: 
     corners at low servo rates the energy at tf of a good design is then up to several times the
     reference's while its dwell residual is a few hundredths of it, and a refinement that
     weighs the energy trades the dwell amplitude, which the comparison measures, for it
-    (docs/conventions.md#servo)."""
+    (docs/conventions.md#servo). "peak" keeps the dwell's smooth maximum alone (``metrics.dwell_peak``:
+    a power mean over the dwell samples standing in for the maximum the comparison reports, where
+    the mean square weighs the whole dwell alike), r_k = P_k / D^2 with D the reference's dwell
+    residual, so that r_k is at most 1 for a design as good as the reference (the smooth maximum lies
+    below the maximum); the energy's and the mean square's references are infinite."""
     from .objective import Scales
 
     _check_objective(objective)
     amp = float(np.ravel(reference["dwell_residual_mm"])[0]) * 1e-3
     bound = jnp.full(k, float(torque_bound))
+    if objective == "peak":
+        inf = jnp.full(k, jnp.inf)
+        return Scales(energy=inf, dwell_ms=inf, torque_bound=bound, dwell_peak=jnp.full(k, amp**2 / 2))
     if objective == "dwell":
         return Scales(energy=jnp.full(k, jnp.inf), dwell_ms=jnp.full(k, amp**2 / 4), torque_bound=bound)
     energy = float(np.ravel(reference["residual_energy"])[0])

@@ -27,7 +27,7 @@ SERVO_TRAININGS = ("fixed", "corners")  # the servo refinement's fixed models: n
 # what the servo refinement minimizes on each model: its dwell amplitude alone, or with the perfect
 # controller's objective's vibration energy at tf beside it (how the first shipped designs were refined;
 # under a servo that energy misleads: docs/conventions.md#servo)
-SERVO_OBJECTIVES = ("dwell", "energy+dwell")
+SERVO_OBJECTIVES = ("dwell", "energy+dwell", "peak")
 SERVO_LEARNING_RATE = 0.05         # Adam's rate in the servo refinement (it starts from an optimized design)
 ROBUST_POWER = 8.0                  # a power mean of this order over the training models: a smooth worst case
 BLEND_FAMILY = "smoothstep"         # the optimized design's default blend family (d, e per corner; G4 joins)

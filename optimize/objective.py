@@ -85,26 +85,30 @@ def decode(cycle: Cycle, p: Params) -> Design:
 class Scales(NamedTuple):
     """Reference values per model (K,): vibration energy at tf [J] and mean square dwell amplitude
     [m^2]; peak torque bound [N m] per model (K,) or scalar (inf: no bound); optional weights (K,)
-    of the models in the mean (summing to 1; None: equal weights)."""
+    of the models in the mean (summing to 1; None: equal weights); optional reference (K,) [m^2] of
+    the dwell's smooth maximum ``metrics.Terms.dwell_peak`` (None: no such term)."""
 
     energy: jax.Array
     dwell_ms: jax.Array
     torque_bound: jax.Array
     weights: jax.Array | None = None
+    dwell_peak: jax.Array | None = None
 
 
-def scaled_residual(terms: Terms, energy_ref, dwell_ref):
-    """E / E_ref + A / A_ref: a model's residual in units of its references (twice the module
+def scaled_residual(terms: Terms, energy_ref, dwell_ref, peak_ref=None):
+    """E / E_ref + A / A_ref (+ P / P_ref with a peak reference, P the dwell's smooth maximum
+    ``terms.dwell_peak``): a model's residual in units of its references (twice the module
     docstring's r_k), the only way ``combine`` depends on the energy and dwell terms."""
-    return terms.energy / energy_ref + terms.dwell_ms / dwell_ref
+    r = terms.energy / energy_ref + terms.dwell_ms / dwell_ref
+    return r if peak_ref is None else r + terms.dwell_peak / peak_ref
 
 
 def combine(terms: Terms, scales: Scales, torque_weight: float = TORQUE_WEIGHT, power: float = 1.0):
     """The scalar objective J (module docstring) from per-model terms (leaves (K,)): the log of the
     weighted power mean of order ``power`` of the models' scaled residuals r_k (1: the weighted
     mean; larger: a smooth stand-in for the worst model, within a factor w_min^(-1/power) of it)."""
-    return combine_scaled(scaled_residual(terms, scales.energy, scales.dwell_ms), terms.torque, scales,
-                          torque_weight, power)
+    per_model = scaled_residual(terms, scales.energy, scales.dwell_ms, scales.dwell_peak)
+    return combine_scaled(per_model, terms.torque, scales, torque_weight, power)
 
 
 def combine_scaled(per_model, torque, scales: Scales, torque_weight: float = TORQUE_WEIGHT, power: float = 1.0):
@@ -198,10 +202,10 @@ class DesignObjective:
         return RolloutState(design=decode(model.cycle, params))
 
     @staticmethod
-    def head(terms: Terms, energy_ref, dwell_ref):
+    def head(terms: Terms, energy_ref, dwell_ref, peak_ref=None):
         """(y, terms): y = [r_k, tau_k] (2,), the only values of one model's terms that ``combine``
         depends on: its scaled residual (``scaled_residual``) and its peak torque [N m]."""
-        return jnp.stack([scaled_residual(terms, energy_ref, dwell_ref), terms.torque]), terms
+        return jnp.stack([scaled_residual(terms, energy_ref, dwell_ref, peak_ref), terms.torque]), terms
 
     def terms(self, params: Params) -> Terms:
         """The per-model terms (leaves with the leading axis K) of the decoded design on the

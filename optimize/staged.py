@@ -177,8 +177,9 @@ _RAN: dict = {}             # (chain key, gradient) -> compiled.generation() of 
 
 
 def _slices(objective: DesignObjective, robots, workspaces, scales) -> list:
-    return [(objective.rollout_model(_at(robots, i), _at(workspaces, i)), (scales.energy[i], scales.dwell_ms[i]))
-            for i in range(objective.count)]
+    refs = lambda i: (scales.energy[i], scales.dwell_ms[i]) + (
+        () if scales.dwell_peak is None else (scales.dwell_peak[i],))
+    return [(objective.rollout_model(_at(robots, i), _at(workspaces, i)), refs(i)) for i in range(objective.count)]
 
 
 def _models(objective: DesignObjective) -> list:

@@ -83,8 +83,9 @@ def test_the_closed_loop_objective_weighs_the_dwell_amplitude_alone_or_with_the_
     """``closed_loop_scales``: with "dwell" the objective is the log of the power mean of A_k / A_ref
     (A the mean square dwell amplitude, A_ref = a^2 / 2 for the reference's residual a), 0 for the
     reference's own residual, and neither it nor its gradient depends on the energy at tf; with
-    "energy+dwell" it is the perfect controller's residual (E_k / E_ref + A_k / A_ref) / 2. To
-    1e-14 relative: the same arithmetic in another order."""
+    "energy+dwell" it is the perfect controller's residual (E_k / E_ref + A_k / A_ref) / 2; with
+    "peak" the log of the power mean of P_k / a^2 (P the dwell's smooth maximum). To 1e-14
+    relative: the same arithmetic in another order."""
     import jax
     import jax.numpy as jnp
     from jaxflex.metrics import Terms
@@ -106,6 +107,16 @@ def test_the_closed_loop_objective_weighs_the_dwell_amplitude_alone_or_with_the_
     both = cl.closed_loop_scales(ref, 3, 20.0, "energy+dwell")
     np.testing.assert_allclose(float(combine(terms, both, power=p)),
                                np.log(mean((energy / e_ref + dwell_ms / a_ref) / 2)), rtol=1e-14)
+    # "peak": the log of the power mean of P_k / a^2 (P the dwell's smooth maximum), neither the
+    # energy nor the mean square in it or its gradient
+    peak = jnp.asarray([0.5, 0.02, 3.0]) * (1e-6) ** 2
+    with_peak = terms._replace(dwell_peak=peak)
+    smooth = cl.closed_loop_scales(ref, 3, 20.0, "peak")
+    np.testing.assert_allclose(float(combine(with_peak, smooth, power=p)), np.log(mean(peak / (1e-6) ** 2)),
+                               rtol=1e-14)
+    g = jax.grad(lambda t: combine(t, smooth, power=p))(with_peak)
+    assert np.all(np.asarray(g.energy) == 0.0) and np.all(np.asarray(g.dwell_ms) == 0.0)
+    assert np.all(np.asarray(g.dwell_peak) > 0)
     with pytest.raises(ValueError, match="objective must be one of"):
         cl.closed_loop_scales(ref, 3, 20.0, "energy")
 

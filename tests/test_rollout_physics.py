@@ -174,6 +174,40 @@ def test_metrics_on_a_series_with_known_answers():
         assert got[k] == pytest.approx(v, rel=1e-12), (k, got[k], v)
 
 
+def test_the_objectives_dwell_terms_are_the_mean_square_and_a_smooth_maximum_below_the_maximum():
+    """``metrics.terms`` on a known dwell: |e - e_static| = a exp(-t / T) |sin(w t + phi)| sampled
+    every ms (a 50 Hz oscillation decaying over 50 ms). The mean square is the samples' mean; the smooth maximum (power mean
+    of order 16 of the squares) equals its definition, lies between the mean square and the
+    squared dwell residual, tends to the maximum as its order grows, and its gradient equals central
+    differences (relative 1e-6: their truncation at a step of 1e-4 of a sample's square)."""
+    from jaxflex.metrics import DWELL_PEAK_POWER, dwell_peak, terms
+
+    series, _ = _synthetic_series()
+    n = series.e_dwell.shape[0]
+    t = np.arange(n) * 1e-3
+    amp = 2e-6 * np.exp(-t / 0.05) * np.sin(2 * np.pi * 50 * t + 0.3)
+    d = np.stack([0.6 * amp, 0.8 * amp], -1)
+    s = series._replace(e_dwell=jnp.asarray(d) + series.e_static[None])
+    tm = jax.jit(terms)(s)
+    sq = amp**2
+    assert float(tm.dwell_ms) == pytest.approx(np.mean(sq), rel=1e-12)
+    p = DWELL_PEAK_POWER
+    assert float(tm.dwell_peak) == pytest.approx(np.mean(sq**p) ** (1 / p), rel=1e-12)
+    top = (1e-3 * float(tm.metrics["dwell_residual_mm"])) ** 2
+    assert top == pytest.approx(sq.max(), rel=1e-12)
+    assert np.mean(sq) < float(tm.dwell_peak) < top
+    assert float(dwell_peak(jnp.asarray(sq), 4 * p)) > float(tm.dwell_peak)
+    assert float(dwell_peak(jnp.asarray(sq), 1000)) == pytest.approx(top, rel=0.01)
+    g = np.asarray(jax.grad(dwell_peak)(jnp.asarray(sq)))
+    for i in (int(np.argmax(sq)), 3, n - 2):
+        h = 1e-4 * sq[i]
+        up, down = sq.copy(), sq.copy()
+        up[i] += h
+        down[i] -= h
+        fd = (float(dwell_peak(jnp.asarray(up))) - float(dwell_peak(jnp.asarray(down)))) / (2 * h)
+        assert g[i] == pytest.approx(fd, rel=1e-6, abs=1e-9 * np.max(np.abs(g))), i
+
+
 def test_metrics_scale_and_shift_as_their_definitions():
     """Invariances: doubling the error doubles every length metric; a constant offset of the whole
     dwell together with e_static (a different sag) changes no dwell amplitude; torques enter only
