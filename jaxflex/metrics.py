@@ -71,9 +71,11 @@ def dwell_peak(amp2, power: int = DWELL_PEAK_POWER):
     ``power``, (mean amp2^power)^(1/power). It lies between the mean and the maximum (the square of
     ``dwell_residual_mm``), within a factor (1/S)^(1/power) of the maximum, and, unlike the maximum, its
     gradient is spread over the samples near the peak. Computed relative to the maximum (held constant
-    in the derivative, which it cancels from exactly), so that amp2^power cannot underflow."""
-    top = jnp.maximum(jax.lax.stop_gradient(jnp.max(amp2)), jnp.finfo(amp2.dtype).tiny)
-    return top * jnp.mean((amp2 / top) ** power) ** (1.0 / power)
+    in the derivative, which it cancels from exactly), so that amp2^power cannot underflow; 0, with a
+    zero gradient, for a dwell at rest."""
+    top = jax.lax.stop_gradient(jnp.max(amp2))
+    m = jnp.mean((amp2 / jnp.where(top > 0, top, 1.0)) ** power)
+    return jnp.where(top > 0, top * jnp.where(top > 0, m, 1.0) ** (1.0 / power), 0.0)    # 0, not NaN, at rest
 
 
 def terms(series) -> Terms:

@@ -198,6 +198,8 @@ def test_the_objectives_dwell_terms_are_the_mean_square_and_a_smooth_maximum_bel
     assert np.mean(sq) < float(tm.dwell_peak) < top
     assert float(dwell_peak(jnp.asarray(sq), 4 * p)) > float(tm.dwell_peak)
     assert float(dwell_peak(jnp.asarray(sq), 1000)) == pytest.approx(top, rel=0.01)
+    at_rest = jnp.zeros(n)
+    assert float(dwell_peak(at_rest)) == 0.0 and np.all(np.asarray(jax.grad(dwell_peak)(at_rest)) == 0.0)
     g = np.asarray(jax.grad(dwell_peak)(jnp.asarray(sq)))
     for i in (int(np.argmax(sq)), 3, n - 2):
         h = 1e-4 * sq[i]
