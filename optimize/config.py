@@ -24,9 +24,10 @@ TRAINING_SETS = ("box", "nominal", "spanning", "perturbed")
 SCENARIOS = 6                      # worst-case scenario models added to the servo refinement's training set
 SCENARIO_POOL = 64                 # random models of both boxes they are chosen from (with the 32 corners)
 SERVO_TRAININGS = ("fixed", "corners")  # the servo refinement's fixed models: nine, or all 32 corners of both boxes
-# what the servo refinement minimizes on each model: its dwell amplitude alone, or with the perfect
-# controller's objective's vibration energy at tf beside it (how the first shipped designs were refined;
-# under a servo that energy misleads: docs/conventions.md#servo)
+# what the servo refinement minimizes on each model: its dwell amplitude alone (the mean square over
+# the dwell), or with the perfect controller's objective's vibration energy at tf beside it (how the
+# first shipped designs were refined; under a servo that energy misleads), or a smooth maximum of the
+# dwell amplitude ("peak", closer to the reported residual): docs/conventions.md#servo
 SERVO_OBJECTIVES = ("dwell", "energy+dwell", "peak")
 SERVO_LEARNING_RATE = 0.05         # Adam's rate in the servo refinement (it starts from an optimized design)
 ROBUST_POWER = 8.0                  # a power mean of this order over the training models: a smooth worst case

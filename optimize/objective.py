@@ -15,6 +15,7 @@ log scale, through the weighted power mean of order p over the models:
     r_k = (E_k / E_ref,k + A_k / A_ref,k) / 2
     J = (1/p) log( sum_k w_k r_k^p ) + W * sum_k max(tau_k / tau_max,k - 1, 0)^2
 
+(under a servo, optionally the dwell's smooth maximum in place of both: ``Scales.dwell_peak``)
 with E the vibration energy at tf [J] and A the mean square dwell amplitude [m^2] of model k (a
 set of payloads, stiffness and payload perturbations: the robust variant) with weight w_k (equal
 by default), tau the peak motor torque and tau_max its bound (``Scales``). p = 1 is the weighted
