@@ -33,6 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxflex.expm import phi_series
 from jaxflex.linearized import FastCoeffs, SlowCoeffs, Tables, interpolate
 from jaxflex.rigid import rigid_torques
 from jaxflex.robot import Robot
@@ -43,7 +44,7 @@ from jaxflex.simulate import (Grid, MotionSamples, Series, jump_nodes, per_inter
 
 NODES = 32          # sub-step nodes per fine step (a power of 2: the full step by doubling)
 DEGREE = 7          # the local interpolant's degree in theta
-TAYLOR = 20         # terms of the small step's matrix functions (|A h / NODES| about 0.8 at most: 1e-20)
+TAYLOR = 20         # terms of the small step's phi_2 series (|A h / NODES| about 0.8 at most: 1e-20)
 
 
 class Schedule(NamedTuple):
@@ -184,17 +185,9 @@ def _maps(mass, k, c, h) -> _Maps:
     a = jnp.block([[zero, w * eye], [-minv @ k / w, -minv @ c]])
     b = jnp.concatenate([zero, minv / w])                                   # force -> y'
     delta = h / NODES
-    x = a * delta
-    # E = e^X, F1 = phi1(X), F2 = phi2(X) by Taylor; U, V1, V2 over delta: e^{A d}, int_0^d e^{A s} ds,
-    # int_0^d e^{A (d - s)} s ds
-    term, e_sum, f1, f2 = jnp.eye(2 * n), jnp.zeros((2 * n, 2 * n)), jnp.zeros((2 * n, 2 * n)), jnp.zeros((2 * n, 2 * n))
-    fact = 1.0
-    for j in range(TAYLOR):
-        e_sum = e_sum + term / fact
-        f1 = f1 + term / (fact * (j + 1))
-        f2 = f2 + term / (fact * (j + 1) * (j + 2))
-        term = term @ x
-        fact = fact * (j + 1)
+    # E = e^X, F1 = phi1(X), F2 = phi2(X) by Taylor (``expm.phi_series``); U, V1, V2 over delta:
+    # e^{A d}, int_0^d e^{A s} ds, int_0^d e^{A (d - s)} s ds
+    e_sum, f1, f2 = phi_series(a * delta, TAYLOR)
     u_d, v1_d, v2_d = e_sum, delta * f1, delta**2 * f2
     # the node tables by recurrence over t = i delta for the rows R = [d, d' / w] of y:
     # U(t + d) = U(t) U(d), V1(t + d) = V1(t) + U(t) V1(d), V2(t + d) = V2(t) + d V1(t) + U(t) V2(d)

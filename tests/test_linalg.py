@@ -104,3 +104,31 @@ def test_phi_functions_match_their_closed_form_on_a_stiff_oscillator():
         assert np.abs(got - want).max() < 1e-12 * np.abs(want).max(), (p, got, want)
     # zero vectors (the reference's padding steps of size zero) give zero, not NaN
     assert np.all(np.asarray(phi_times(jnp.asarray(a), [jnp.zeros(5)], s)) == 0.0)
+
+
+def test_phi_series_matches_the_closed_form_in_the_servo_loops_small_steps():
+    """``expm.phi_series`` (the closed loop's sub-step matrix functions, by Paterson and Stockmeyer)
+    against e^z, phi_1(z) = (e^z - 1) / z and phi_2(z) = (e^z - 1 - z) / z^2 on the eigenvalues of a
+    non-normal matrix whose norm is that of the servo loop's sub-steps (about 0.8): an undamped
+    oscillator at omega delta = 0.7, a damped one and a real decay. The series' truncation at 20
+    terms is ~1e-20, so what is left is round-off (the closed form's own, ~1e-15 here); the series
+    cut at 14 terms instead fails the check."""
+    from jaxflex.expm import phi_series
+
+    rng = np.random.default_rng(5)
+    d = np.zeros((5, 5))
+    d[:2, :2] = [[0.0, 0.7], [-0.7, 0.0]]
+    d[2:4, 2:4] = [[-0.3, 0.5], [-0.5, -0.3]]
+    d[4, 4] = -0.6
+    v = np.eye(5) + 0.2 * rng.normal(size=(5, 5))
+    a = v @ d @ np.linalg.inv(v)
+    lam, vec = np.linalg.eig(a)
+    inv = np.linalg.inv(vec)
+    closed = [np.exp(lam), (np.exp(lam) - 1) / lam, (np.exp(lam) - 1 - lam) / lam**2]
+    got = phi_series(jnp.asarray(a), 20)
+    for k, (g, f) in enumerate(zip(got, closed)):
+        want = np.real(vec @ np.diag(f) @ inv)
+        assert np.abs(np.asarray(g) - want).max() < 1e-13 * np.abs(want).max(), (k, np.abs(np.asarray(g) - want).max())
+    # batched (vmapped or with leading axes) as one matrix at a time
+    both = phi_series(jnp.stack([jnp.asarray(a), 0.5 * jnp.asarray(a)]), 20)
+    np.testing.assert_array_equal(np.asarray(both[2][0]), np.asarray(got[2]))
