@@ -33,6 +33,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxflex import linalg
 from jaxflex.expm import phi_series
 from jaxflex.linearized import FastCoeffs, SlowCoeffs, Tables, interpolate
 from jaxflex.rigid import rigid_torques
@@ -179,7 +180,7 @@ def _maps(mass, k, c, h) -> _Maps:
     """The frozen interval's maps over a step h (``_Maps``), from the matrix functions of h / NODES
     (Taylor series) in velocity-scaled coordinates y = [z, z' / w]."""
     n = mass.shape[0]
-    minv = jnp.linalg.inv(mass)
+    minv = linalg.inv(mass)
     w = jnp.sqrt(jnp.maximum(jnp.max(jnp.abs(jnp.diag(minv @ k))), 1.0))
     eye, zero = jnp.eye(n), jnp.zeros((n, n))
     a = jnp.block([[zero, w * eye], [-minv @ k / w, -minv @ c]])
@@ -341,7 +342,7 @@ def _rest(tables: Tables, servo_tables: Tables, s):
 def _equilibrium(k, force, servo: Servo, ff):
     """The closed loop's static equilibrium z* (n,) at rest: K z = F + [ff - Kp d; 0]."""
     k_cl = k.at[jnp.arange(2), jnp.arange(2)].add(servo.kp)
-    return jnp.linalg.solve(k_cl, force.at[:2].add(ff)), k_cl
+    return linalg.solve(k_cl, force.at[:2].add(ff)), k_cl
 
 
 def _outputs(z, zd, zdd, fast: FastCoeffs, sc: ServoCoeffs, ds, dds, u):
@@ -469,7 +470,9 @@ def closed_loop(tables: Tables, servo_tables: Tables, samples: MotionSamples, sc
     end_d, (xd, ud) = _march(end2, maps_d, st_d, servo)
     xd = jnp.concatenate([xd.reshape(nd, -1), end_d.x[None]])
     ud = jnp.concatenate([ud.reshape(nd, 2), end_d.u[None]])
-    zddd = jax.vmap(lambda x, u: jnp.linalg.solve(m_p, force_p.at[:2].add(u) - c_p @ x[n:] - k_p @ x[:n]))(xd, ud)
+    # one elimination for every dwell node's right-hand side (M z'' = F + [u; 0] - C z' - K z)
+    held = force_p[None, :] + jnp.concatenate([ud, jnp.zeros((nd + 1, n - 2))], axis=1)
+    zddd = linalg.solve(m_p, (held - xd[:, n:] @ c_p.T - xd[:, :n] @ k_p.T).T).T
     over = lambda tree: jax.tree_util.tree_map(lambda a: jnp.broadcast_to(a, (nd + 1,) + a.shape), tree)
     zero = jnp.zeros(nd + 1)
     yd = _outputs(xd[:, :n], xd[:, n:], zddd, over(rest_c.fast()), over(rest_sc), zero, zero, ud)
