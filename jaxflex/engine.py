@@ -111,11 +111,10 @@ class Job(NamedTuple):
 
 
 def run_many(jobs: Sequence[Job], grid: Grid, second_order: bool = True) -> Series:
-    """Rollouts of the jobs (``Job``), stacked along a leading axis (run
-    side by side on the host's cores, ``jaxflex.runtime.threads``; one after another under a servo:
-    its closed-loop programs have hung when XLA:CPU ran two of them from two threads)."""
+    """Rollouts of the jobs (``Job``), stacked along a leading axis (run side by side on the host's
+    cores, ``jaxflex.runtime.threads``)."""
     return trees.stack(host_map(lambda job: run(*job[:5], grid=grid, second_order=second_order, servo=job.servo),
-                                jobs, parallel=all(job.servo is None for job in jobs)))
+                                jobs))
 
 
 @jax.jit
@@ -263,7 +262,7 @@ class LawEvaluator:
             def one(i):
                 job = self._jobs([self._build(self._robots[i])], [i], samples, tf, ff)[0]
                 return run(*job[:5], grid=self.grid, servo=job.servo)
-            return trees.stack(host_map(one, range(len(self._robots)), parallel=self._servos is None))
+            return trees.stack(host_map(one, range(len(self._robots))))
         return run_many(self._jobs(self._tables, range(len(self._robots)), samples, tf, ff), self.grid)
 
     def __call__(self, law, tf: float | None = None) -> dict:

@@ -5,10 +5,14 @@ thousands of times inside one vmapped, jitted program. jaxlib's CPU LAPACK kerne
 ``jnp.linalg.solve`` and ``inv``) can deadlock intermittently when XLA runs several of them
 concurrently in a large batched program (the process waits forever with all threads idle; the same
 class as jax-ml/jax#24219; neither ``--xla_cpu_multi_thread_eigen=false`` nor synchronous dispatch
-avoids it). The whole package therefore avoids LAPACK solves: the model (``jaxflex.model``) uses
-``spd_solve`` for its mass matrices and ``solve`` for the static Newton step. These eliminations are
-plain arithmetic, so they fuse, batch and differentiate like any other jnp code and cannot hit that
-bug. Only ``jnp.linalg.eigh`` remains (modal analysis, never batched inside the rollouts).
+avoids it). The model and every rollout therefore avoid LAPACK solves: the model
+(``jaxflex.model``) uses ``spd_solve`` for its mass matrices and ``solve`` for the static Newton
+step, the closed loop (``jaxflex.servo_simulate``) ``inv`` and ``solve``, so the rollouts can run
+side by side from threads. These eliminations are plain arithmetic, so they fuse, batch and
+differentiate like any other jnp code and cannot hit that bug. LAPACK remains only outside the
+batched rollouts: ``jnp.linalg.eigh`` (modal analysis; once per rollout at rest), the servo's
+stability check (``servo.sampled_loop``, a matrix exponential per model) and the full reference
+model's Newton step under a servo (``reference_servo``).
 
 Derivatives: each function has a custom JVP from the matrix identities (d(A^-1) = -A^-1 dA A^-1,
 dL = L Phi(L^-1 dA L^-T) for Cholesky, ...), made of matrix products only. Differentiating through
