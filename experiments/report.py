@@ -151,6 +151,7 @@ def optimization_section(res: dict, out: Path) -> str:
 
 def closed_loop_section(res: dict) -> str:
     """The closed-loop section: per case and bandwidth, the comparison table and the figure."""
+    from .closed_loop import sweep_caption
     from .optimize import closed_loop_text
 
     lines = ["## 6. Beyond the paper: under a servo loop", "",
@@ -177,10 +178,12 @@ def closed_loop_section(res: dict) -> str:
                 title = f"refined at fc {fc} Hz in this run"
             lines += [f"### {case_label(case['payload'], case['tf'])}: {title}", "", "```",
                       closed_loop_text(st), "```", ""]
+        first = next(iter(case["studies"].values()), None)
+        said = sweep_caption(case.get("sweep"), first)
         lines += [f"![residual against fc]({d}/residual_vs_fc.png)", "",
                   f"*Dwell residual on the nominal robot against the servo's bandwidth ({d}). The solid lines are "
-                  "under the servo and the dashed lines under the perfect controller. The optimized design uses "
-                  "the flexible feedforward; with the rigid one it keeps no advantage.*", ""]
+                  "under the servo and the dashed lines under the perfect controller." + (f" {said}" if said else "")
+                  + "*", ""]
     return "\n".join(lines)
 
 

@@ -170,13 +170,21 @@ def test_the_closed_loop_report_and_figure_render_a_study_record(tmp_path):
              "corners": True, "paper": {"40": {"best": "polar/poly7", "dwell_residual_um": {}}},
              "refined": {"history": [[0, 1.0], [1, -1.0]], "steps_run": 2},
              "fcs": {"40": {"optimized": row(0.25, 0.46), "polar/poly7 (best paper)": row(1.08, 1.74)}}}
+    sweep = {"fcs": [15.0, 40.0], "dwell_residual_um": {"optimized": [1.3, 0.25], "polar/poly7": [9.5, 1.08],
+                                                        "optimized, rigid feedforward": [2.0, 0.2]}}
     text = closed_loop_section({"cases": [{"dir": "closed_loop_6kg", "payload": 6.0, "tf": 0.43,
-                                           "studies": {"40": study}}]})
+                                           "studies": {"40": study}, "sweep": sweep}]})
     assert "2 of the 5 models' loops unstable" in text and "objective (energy+dwell) 1.000 -> -1.000" in text
     assert "| optimized " in text and "closed_loop_6kg/residual_vs_fc.png" in text
-    sweep = {"fcs": [15.0, 40.0], "dwell_residual_um": {"optimized": [1.3, 0.25], "polar/poly7": [9.5, 1.08]}}
+    # the figure's caption says what the sweep measured: 9.5 / 1.3 and 1.08 / 0.25 below the paper's
+    # best with the design's own (flexible) feedforward, 9.5 / 2 and 1.08 / 0.2 with the rigid one,
+    # which does better at 40 Hz only
+    assert ("from 15 to 40 Hz, the optimized design of the first table leaves 4.32x to 7.31x less than the better "
+            "paper combination shown with the flexible feedforward it was refined with, and 4.75x to 5.4x less "
+            "with the rigid one; the rigid one does better than its own at 40 Hz.*") in text
+    assert "no advantage" not in text
     fig = exp.figure(sweep, study, "6 kg, 0.43 s")
-    assert len(fig.axes[0].get_lines()) == 4          # two trajectories, each with its perfect-controller line
+    assert len(fig.axes[0].get_lines()) == 5          # three trajectories, two with a perfect-controller line
     fig.savefig(tmp_path / "f.png")
     assert (tmp_path / "f.png").stat().st_size > 1000
 
