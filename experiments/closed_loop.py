@@ -106,35 +106,6 @@ def figure(sweep: dict, closed: dict, label: str):
     return fig
 
 
-def sweep_caption(sweep: dict | None, closed: dict | None) -> str:
-    """What the figure of ``bandwidth_sweep`` shows, in sentences computed from its values: over its
-    bandwidths, how many times below the better paper combination of the figure the optimized
-    design's nominal residual lies with the feedforward it was refined with (``closed``'s
-    controller) and with the rigid one, and at which bandwidths the rigid one does better. "" when
-    the sweep holds no optimized and paper lines."""
-    values = (sweep or {}).get("dwell_residual_um", {})
-    fcs = (sweep or {}).get("fcs", [])
-    paper = [v for k, v in values.items() if not k.startswith("optimized")]
-    own, rigid = values.get("optimized"), values.get("optimized, rigid feedforward")
-    if not (fcs and paper and own):
-        return ""
-    best = [min(col) for col in zip(*paper)]
-    span = lambda line: (f"{min(b / v for b, v in zip(best, line)):.3g}x to "
-                         f"{max(b / v for b, v in zip(best, line)):.3g}x")
-    kind = ((closed or {}).get("controller") or {}).get("feedforward", "flexible")
-    where = f"from {fcs[0]:g} to {fcs[-1]:g} Hz"
-    text = (f"On the nominal robot, {where}, the optimized design of the first table leaves {span(own)} less "
-            f"than the better paper combination shown with the {kind} feedforward it was refined with")
-    if rigid is None or kind == "rigid":
-        return text + "."
-    better = [f"{fc:g}" for fc, a, b in zip(fcs, own, rigid) if b < a]
-    text += f", and {span(rigid)} less with the rigid one"
-    if not better:
-        return text + "."
-    at = better[0] if len(better) == 1 else ", ".join(better[:-1]) + " and " + better[-1]
-    return text + f"; the rigid one does better than its own at {at} Hz."
-
-
 def reproduce_case(record: dict, out_dir: str, steps: int, samples: int, fcs=FCS, figure_fcs=FIGURE_FCS,
                    corners: bool = True) -> dict:
     """One case of reproduce's closed-loop section (a module-level function: reproduce runs it in a
