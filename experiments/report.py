@@ -150,11 +150,11 @@ def optimization_section(res: dict, out: Path) -> str:
 
 
 def sweep_caption(sweep: dict | None, closed: dict | None) -> str:
-    """What the figure of ``closed_loop.bandwidth_sweep`` shows, in sentences computed from its values: over its
-    bandwidths, how many times below the better paper combination of the figure the optimized
-    design's nominal residual lies with the feedforward it was refined with (``closed``'s
-    controller) and with the rigid one, and at which bandwidths the rigid one does better. "" when
-    the sweep holds no optimized and paper lines."""
+    """What the figure of ``closed_loop.bandwidth_sweep`` shows, in sentences computed from its
+    values: over its bandwidths, how many times below the better paper combination of the figure
+    the optimized design's nominal residual lies with the feedforward it was refined with
+    (``closed``'s controller) and with the rigid one, and at which bandwidths the rigid one does
+    better. "" when the sweep holds no optimized and paper lines."""
     values = (sweep or {}).get("dwell_residual_um", {})
     fcs = (sweep or {}).get("fcs", [])
     paper = [v for k, v in values.items() if not k.startswith("optimized")]

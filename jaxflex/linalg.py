@@ -9,10 +9,11 @@ avoids it). The model and every rollout therefore avoid LAPACK solves: the model
 (``jaxflex.model``) uses ``spd_solve`` for its mass matrices and ``solve`` for the static Newton
 step, the closed loop (``jaxflex.servo_simulate``) ``inv`` and ``solve``, so the rollouts can run
 side by side from threads. These eliminations are plain arithmetic, so they fuse, batch and
-differentiate like any other jnp code and cannot hit that bug. LAPACK remains only outside the
-batched rollouts: ``jnp.linalg.eigh`` (modal analysis; once per rollout at rest), the servo's
-stability check (``servo.sampled_loop``, a matrix exponential per model) and the full reference
-model's Newton step under a servo (``reference_servo``).
+differentiate like any other jnp code and cannot hit that bug. LAPACK remains where it runs once
+per rollout or per model, never batched over steps or intervals: ``jnp.linalg.eigh`` (modal
+analysis, and the low modes at rest at the end of each rollout), the servo's stability check
+(``servo.sampled_loop``: an inverse and a matrix exponential per model and pose) and the full
+reference model's Newton step under a servo (``reference_servo``).
 
 Derivatives: each function has a custom JVP from the matrix identities (d(A^-1) = -A^-1 dA A^-1,
 dL = L Phi(L^-1 dA L^-T) for Cholesky, ...), made of matrix products only. Differentiating through
