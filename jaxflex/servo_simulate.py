@@ -190,44 +190,47 @@ def _maps(mass, k, c, h) -> _Maps:
     # e^{A d}, int_0^d e^{A s} ds, int_0^d e^{A (d - s)} s ds
     e_sum, f1, f2 = phi_series(a * delta, TAYLOR)
     u_d, v1_d, v2_d = e_sum, delta * f1, delta**2 * f2
+    # only the forcing's responses V1 B, V2 B (2n, n) are used, never V1, V2 themselves: carry them
+    # (the recurrences below are linear in V1, V2, so they hold for V1 B, V2 B; half the products)
+    v1b_d, v2b_d = v1_d @ b, v2_d @ b
     # the node tables by recurrence over t = i delta for the rows R = [d, d' / w] of y:
     # U(t + d) = U(t) U(d), V1(t + d) = V1(t) + U(t) V1(d), V2(t + d) = V2(t) + d V1(t) + U(t) V2(d)
     # (a scan, not a Python loop: one small body compiled instead of NODES copies of it)
     rows = jnp.zeros((4, 2 * n)).at[0, 0].set(1.0).at[1, 1].set(1.0).at[2, n].set(1.0).at[3, n + 1].set(1.0)
-    first = (rows, jnp.zeros((4, 2 * n)), jnp.zeros((4, 2 * n)))
+    first = (rows, jnp.zeros((4, n)), jnp.zeros((4, n)))
 
     def node(c, _):
         ru, rv1, rv2 = c
-        nxt = (ru @ u_d, rv1 + ru @ v1_d, rv2 + delta * rv1 + ru @ v2_d)
+        nxt = (ru @ u_d, rv1 + ru @ v1b_d, rv2 + delta * rv1 + ru @ v2b_d)
         return nxt, nxt
 
     _, later = jax.lax.scan(node, first, None, length=NODES)
     ru_n, rv1_n, rv2_n = (jnp.concatenate([a[None], b_]) for a, b_ in zip(first, later))
     # the held torque's response over the last (1 - theta) h: G(t) = V1(t) B S at t = (P - i) delta,
     # G(t + d) = V1(d) B S + U(d) G(t)
-    bs = b[:, :2]
     g0 = jnp.zeros((2 * n, 2))
+    v1bs_d = v1b_d[:, :2]
 
     def held(g, _):
-        g = v1_d @ bs + u_d @ g
+        g = v1bs_d + u_d @ g
         return g, g
 
     _, g = jax.lax.scan(held, g0, None, length=NODES)
     gs_n = jnp.concatenate([g0[None], g])[::-1]
-    # the full step by doubling: (U, V1, V2)(2 t) = (U^2, V1 + U V1, U V2 + t V1 + V2)
-    u_h, v1_h, v2_h, t = u_d, v1_d, v2_d, delta
+    # the full step by doubling: (U, V1 B, V2 B)(2 t) = (U^2, V1 B + U V1 B, U V2 B + t V1 B + V2 B)
+    u_h, v1_h, v2_h, t = u_d, v1b_d, v2b_d, delta
     for _ in range(int(np.log2(NODES))):
         u_h, v1_h, v2_h = u_h @ u_h, v1_h + u_h @ v1_h, u_h @ v2_h + t * v1_h + v2_h
         t = 2 * t
     # back to x = T y, T = diag(I, w I): phi = T U T^-1, responses T V B, rows scaled alike
     tvec = jnp.concatenate([jnp.ones(n), jnp.full(n, w)])
     phi = u_h * tvec[:, None] / tvec[None, :]
-    p1 = tvec[:, None] * (v1_h @ b)
-    p2 = tvec[:, None] * (v2_h @ b) / h
+    p1 = tvec[:, None] * v1_h
+    p2 = tvec[:, None] * v2_h / h
     rscale = jnp.asarray([1.0, 1.0, 0.0, 0.0]) + w * jnp.asarray([0.0, 0.0, 1.0, 1.0])
     ru_x = ru_n * rscale[None, :, None] / tvec[None, None, :]
-    rv1_x = rscale[None, :, None] * (rv1_n @ b)
-    rv2_x = rscale[None, :, None] * (rv2_n @ b) / h
+    rv1_x = rscale[None, :, None] * rv1_n
+    rv2_x = rscale[None, :, None] * rv2_n / h
     gs_x = tvec[None, :, None] * gs_n
     return _Maps(phi, p1, p2, minv, k, c, ru_x, rv1_x, rv2_x, gs_x)
 
