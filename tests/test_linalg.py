@@ -74,6 +74,21 @@ def test_custom_derivatives_match_lapack_reference():
     np.testing.assert_allclose(jnp.sum(g * ds), fd, rtol=1e-7)
 
 
+def _oscillators(rng, omega, damped, decay, spread):
+    """A non-normal 5 x 5 matrix V D V^-1 whose eigenvalues are an undamped oscillator +-i omega, a
+    damped one ``damped`` = (sigma, omega') and a real decay, V = I + ``spread`` N(0, 1); and the
+    matrix function of a scalar function on those eigenvalues (by the eigendecomposition)."""
+    d = np.zeros((5, 5))
+    d[:2, :2] = [[0.0, omega], [-omega, 0.0]]
+    d[2:4, 2:4] = [[damped[0], damped[1]], [-damped[1], damped[0]]]
+    d[4, 4] = decay
+    v = np.eye(5) + spread * rng.normal(size=(5, 5))
+    a = v @ d @ np.linalg.inv(v)
+    lam, vec = np.linalg.eig(a)
+    inv = np.linalg.inv(vec)
+    return a, lam, lambda f: np.real(vec @ np.diag(f) @ inv)
+
+
 def test_phi_functions_match_their_closed_form_on_a_stiff_oscillator():
     """``expm.phi_times`` (the exponential integrator's matrix functions) against phi_k(z) =
     (e^z - sum_{j<k} z^j / j!) / z^k on the eigenvalues of a non-normal matrix with an undamped
@@ -82,19 +97,11 @@ def test_phi_functions_match_their_closed_form_on_a_stiff_oscillator():
     from jaxflex.expm import phi_times, squarings_for
 
     rng = np.random.default_rng(3)
-    d = np.zeros((5, 5))
-    d[:2, :2] = [[0.0, 2.5], [-2.5, 0.0]]
-    d[2:4, 2:4] = [[-0.05, 0.8], [-0.8, -0.05]]
-    d[4, 4] = -1.7
-    v = np.eye(5) + 0.3 * rng.normal(size=(5, 5))
-    a = v @ d @ np.linalg.inv(v)
-    lam, vec = np.linalg.eig(a)
-    inv = np.linalg.inv(vec)
+    a, lam, of = _oscillators(rng, 2.5, (-0.05, 0.8), -1.7, 0.3)
 
     def phi(k):
         fact = [math.factorial(j) for j in range(k)]
-        f = (np.exp(lam) - sum(lam**j / fact[j] for j in range(k))) / lam**k
-        return np.real(vec @ np.diag(f) @ inv)
+        return of((np.exp(lam) - sum(lam**j / fact[j] for j in range(k))) / lam**k)
 
     vs = [rng.normal(size=5) for _ in range(3)]
     s = squarings_for(np.abs(a).sum(axis=0).max())
@@ -115,19 +122,11 @@ def test_phi_series_matches_the_closed_form_in_the_servo_loops_small_steps():
     cut at 14 terms instead fails the check."""
     from jaxflex.expm import phi_series
 
-    rng = np.random.default_rng(5)
-    d = np.zeros((5, 5))
-    d[:2, :2] = [[0.0, 0.7], [-0.7, 0.0]]
-    d[2:4, 2:4] = [[-0.3, 0.5], [-0.5, -0.3]]
-    d[4, 4] = -0.6
-    v = np.eye(5) + 0.2 * rng.normal(size=(5, 5))
-    a = v @ d @ np.linalg.inv(v)
-    lam, vec = np.linalg.eig(a)
-    inv = np.linalg.inv(vec)
+    a, lam, of = _oscillators(np.random.default_rng(5), 0.7, (-0.3, 0.5), -0.6, 0.2)
     closed = [np.exp(lam), (np.exp(lam) - 1) / lam, (np.exp(lam) - 1 - lam) / lam**2]
     got = phi_series(jnp.asarray(a), 20)
     for k, (g, f) in enumerate(zip(got, closed)):
-        want = np.real(vec @ np.diag(f) @ inv)
+        want = of(f)
         assert np.abs(np.asarray(g) - want).max() < 1e-13 * np.abs(want).max(), (k, np.abs(np.asarray(g) - want).max())
     # batched (vmapped or with leading axes) as one matrix at a time
     both = phi_series(jnp.stack([jnp.asarray(a), 0.5 * jnp.asarray(a)]), 20)
