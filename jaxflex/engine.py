@@ -50,6 +50,37 @@ def _stage(model: RolloutModel, inputs: RolloutState, stage: rl.Stage) -> Rollou
 
 _program = jax.jit(_stage, static_argnames=("stage",), compiler_options=HOT_LOOP)
 
+# Rows per call of a stage that maps a field row by row (``rollout.Stage.over``: the second-order
+# remainder at the first pass's sites). Its program then does not depend on the grid: the sweep's
+# grid, its error estimate's coarser grid and a refined grid share one compilation. Each call costs
+# about a quarter of a millisecond whatever its rows (the program's many small kernels), so the
+# pieces are large: the default grid's 392 sites in one call, a coarser grid's padded to them, a
+# finer grid's in two or more (docs/performance.md).
+ROWS = 392
+
+_CANONICAL_GRID = Grid()
+
+
+def _by_rows(model: RolloutModel, inputs: RolloutState, stage: rl.Stage) -> RolloutState:
+    """``stage`` (with ``stage.over``) on ``inputs`` through one program of ``ROWS`` rows, called
+    on consecutive pieces of the mapped field (the last one padded with copies of the first row);
+    the written rows are joined on the host and cut to the field's length. The model's grid is
+    replaced by one fixed grid, which such a stage does not read, so that every grid shares the
+    program."""
+    model = dataclasses.replace(model, grid=_CANONICAL_GRID)
+    leaves, tree = jax.tree_util.tree_flatten(getattr(inputs, stage.over))
+    n = leaves[0].shape[0]
+    if n == ROWS:                                   # one whole piece: no copies
+        return _program(model, inputs, stage=stage)
+    rows = [np.asarray(a) for a in leaves]
+    pad = -n % ROWS
+    rows = [np.concatenate([a, np.repeat(a[:1], pad, axis=0)]) for a in rows]
+    (written,) = stage.writes
+    parts = [getattr(_program(model, inputs._replace(**{stage.over: tree.unflatten([a[i:i + ROWS] for a in rows])}),
+                              stage=stage), written)
+             for i in range(0, n + pad, ROWS)]
+    return rl.RolloutState(**{written: np.concatenate([np.asarray(p) for p in parts])[:n]})
+
 
 def programs(second_order: bool, servo: bool = False) -> tuple[rl.Stage, ...]:
     """The engine's programs over the stages of a rollout from its tables and samples to its series
@@ -94,7 +125,8 @@ def run(tables: Tables, samples: MotionSamples, tf, dwell, robot: Robot, grid: G
     if servo is not None:
         state = state._replace(servo_tables=servo.servo_tables, schedule=servo.schedule, feedforward=servo.feedforward)
     for stage in rl.remaining(state, programs(second_order, servo is not None)):
-        state = rl.merge(state, _program(model, rl.restrict(state, stage.reads), stage=stage), stage.writes)
+        program = _program if stage.over is None else _by_rows
+        state = rl.merge(state, program(model, rl.restrict(state, stage.reads), stage=stage), stage.writes)
     return state.series
 
 

@@ -200,13 +200,18 @@ def metrics_stage(model: RolloutModel, state: RolloutState) -> RolloutState:
 class Stage(NamedTuple):
     """A named stage: ``fn(model, state) -> state`` reads the state fields ``reads`` and writes
     ``writes``; it runs ``when`` "always", under the perfect controller ("prescribed") or under a
-    servo ("servo"). Hashable (a static argument of the interpreters' compiled programs)."""
+    servo ("servo"). ``over``: the one field it reads (a pytree of arrays with a common leading axis)
+    if it maps that field row by row into its one written array, rows in the same order, and reads
+    nothing of the model but the robot and the model order (not the grid, the times or the design):
+    an interpreter may then run it on pieces of the rows (``jaxflex.engine``). Hashable (a static
+    argument of the interpreters' compiled programs)."""
 
     name: str
     fn: Callable
     reads: tuple
     writes: tuple
     when: str = "always"
+    over: str | None = None
 
     def runs_with(self, servo: bool) -> bool:
         """Whether the stage runs under a servo (``servo``) or under the perfect controller."""
@@ -221,7 +226,7 @@ STAGES = (
     Stage("path and tables", path_stage, ("design",), ("tables", "samples")),
     Stage("servo tables", servo_tables_stage, ("design",), ("servo_tables", "schedule"), "servo"),
     Stage("first pass", first_stage, ("tables", "samples"), ("prep", "sites"), "prescribed"),
-    Stage("remainder", remainder_stage, ("sites",), ("remainders",), "prescribed"),
+    Stage("remainder", remainder_stage, ("sites",), ("remainders",), "prescribed", over="sites"),
     Stage("last pass", last_stage, ("tables", "samples", "prep", "remainders"), ("series",), "prescribed"),
     Stage("feedforward", feedforward_stage, ("tables", "samples"), ("feedforward",), "servo"),
     Stage("servo loop", servo_stage, ("tables", "servo_tables", "samples", "schedule", "feedforward"), ("series",),

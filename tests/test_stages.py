@@ -71,6 +71,24 @@ def test_a_stage_added_to_the_list_reaches_the_plain_rollout_and_the_engine(smal
     assert np.max(np.abs(after[0] - before[0])) > 1e-6 * scale           # the stage changed the physics
 
 
+def test_the_engine_runs_the_remainder_in_pieces_that_every_grid_shares(small, monkeypatch):
+    """The engine runs a stage that maps the sites row by row (the remainder, ``Stage.over``) through
+    one program of ``engine.ROWS`` sites, whatever the grid (here 56 rows): a grid twice as fine as
+    ``GRID`` (72 sites: two pieces, the last padded) compiles its two passes but not the remainder
+    again, and its rollout equals the plain rollout's on that grid (round-off, 1e-12 of the
+    response)."""
+    robot, cycle, tables, samples = small
+    monkeypatch.setattr(engine, "ROWS", 56)
+    engine.run(tables, samples, TF, DWELL, robot, GRID)
+    grid = GRID._replace(coarse=2 * GRID.coarse)
+    fine = sample_motion(make_path(cycle, "lame", 0.025).length, make_profile("poly7"), TF, grid)
+    before = engine.cache_size()
+    pieces = _dwell(engine.run(tables, fine, TF, DWELL, robot, grid))
+    assert engine.cache_size() == before + 2, "the remainder's program was compiled again for a new grid"
+    plain = _dwell(jax.jit(lambda t, s: rl.rollout(t, s, TF, DWELL, grid, robot))(tables, fine))
+    np.testing.assert_allclose(pieces, plain, rtol=0, atol=1e-12 * np.max(np.abs(plain)))
+
+
 def test_a_stage_added_to_the_list_reaches_the_staged_gradient_and_its_compile_chain(small, monkeypatch):
     """With the extra stage (which the previous test shows changes the physics), the staged forward
     programs give the one-traced-function objective's value, the staged backward pass (whose cotangents now flow through the extra stage, which reads
