@@ -166,8 +166,9 @@ def compute(repeats: int = 5, quick: bool = False, servo: float | None = None) -
     sweep = {"rollouts": 24, "tables_s": res.tables_s, "compile_s": res.compile_s, "run_s": res.run_s,
              "per_rollout_ms": 1e3 * res.run_s / 24, "steps_per_rollout": g.steps + g.dwell_steps,
              "steps_per_s": steps / res.run_s, "grid": g._asdict()}
-    print(f"  tables (3 blends x 2 payloads, compile included) {res.tables_s:.1f} s")
-    print(f"  rollout programs: compile {res.compile_s:.1f} s, run {res.run_s * 1e3:.0f} ms "
+    print(f"  tables (3 blends x 2 payloads, compile included, the rollout's compiling beside) {res.tables_s:.1f} s")
+    print(f"  rollout programs: compile (what remains after the tables) {res.compile_s:.1f} s, "
+          f"run {res.run_s * 1e3:.0f} ms "
           f"({sweep['per_rollout_ms']:.1f} ms per rollout, {sweep['steps_per_s']:.3g} steps/s)", flush=True)
     servo_rec = None
     if servo is not None:

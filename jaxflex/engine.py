@@ -3,7 +3,8 @@
 The engine interprets the stages of ``jaxflex.rollout`` from a trajectory's tables and samples to
 its series as compiled programs (``programs``): for the second-order model one program per stage,
 run one after the other; for the linearized model one program. They are compiled once per grid,
-model order and mode counts, and that one set serves every caller: the paper sweep, the
+model order and mode counts (the remainder, a map over the first pass's sites, once for every grid:
+``ROWS``), and that one set serves every caller: the paper sweep, the
 optimization studies' paper combinations, baselines and evaluations, the cycle-time study, the
 benchmarks. Batches are run one trajectory at a time, so no batch size ever costs a new
 compilation, from a few threads at once (``jaxflex.runtime.threads``); the metrics come from a small
@@ -27,8 +28,9 @@ import numpy as np
 
 from jaxflex import rollout as rl
 from jaxflex import trees
+from jaxflex.runtime import compiled
 from jaxflex.runtime.options import HOT_LOOP
-from jaxflex.linearized import Tables
+from jaxflex.linearized import SEGMENT_NODES, Tables, coeff_shapes
 from jaxflex.metrics import metrics
 from jaxflex.model_sets import ModelSet
 from jaxflex.runtime.threads import host_map
@@ -71,13 +73,13 @@ def _by_rows(model: RolloutModel, inputs: RolloutState, stage: rl.Stage) -> Roll
     leaves, tree = jax.tree_util.tree_flatten(getattr(inputs, stage.over))
     n = leaves[0].shape[0]
     if n == ROWS:                                   # one whole piece: no copies
-        return _program(model, inputs, stage=stage)
+        return _call(model, inputs, stage)
     rows = [np.asarray(a) for a in leaves]
     pad = -n % ROWS
     rows = [np.concatenate([a, np.repeat(a[:1], pad, axis=0)]) for a in rows]
     (written,) = stage.writes
-    parts = [getattr(_program(model, inputs._replace(**{stage.over: tree.unflatten([a[i:i + ROWS] for a in rows])}),
-                              stage=stage), written)
+    parts = [getattr(_call(model, inputs._replace(**{stage.over: tree.unflatten([a[i:i + ROWS] for a in rows])}),
+                           stage), written)
              for i in range(0, n + pad, ROWS)]
     return rl.RolloutState(**{written: np.concatenate([np.asarray(p) for p in parts])[:n]})
 
@@ -111,6 +113,48 @@ class ServoJob(NamedTuple):
     controller: Robot | None = None
 
 
+def _call(model: RolloutModel, inputs: RolloutState, stage: rl.Stage) -> RolloutState:
+    """One program of the engine on its inputs: the one ``compile_ahead`` compiled for these shapes,
+    if any, else the jitted program (``runtime.compiled.call``)."""
+    return compiled.call(_program, (model, inputs), {"stage": stage})
+
+
+def _ahead_chain(model: RolloutModel, state: RolloutState, stages) -> None:
+    """Lower each program of ``stages`` from the output shapes of the ones before and compile them
+    in the background (``runtime.compiled.lower_ahead``), as ``run`` will call them."""
+    for stage in stages:
+        inputs = rl.restrict(state, stage.reads)
+        if stage.over is None:
+            out, _ = compiled.lower_ahead(_program, (model, inputs), {"stage": stage})
+        else:
+            rows = getattr(inputs, stage.over)
+            n = jax.tree_util.tree_leaves(rows)[0].shape[0]
+            piece = jax.tree_util.tree_map(lambda a: jax.ShapeDtypeStruct((ROWS,) + a.shape[1:], a.dtype), rows)
+            out, _ = compiled.lower_ahead(_program, (dataclasses.replace(model, grid=_CANONICAL_GRID),
+                                                     inputs._replace(**{stage.over: piece})), {"stage": stage})
+            out = jax.tree_util.tree_map(lambda a: jax.ShapeDtypeStruct((n,) + a.shape[1:], a.dtype), out)
+        state = rl.merge(state, out, stage.writes)
+
+
+def compile_ahead(robot: Robot, grid: Grid, second_order: bool = True) -> None:
+    """Start compiling, in the background, the engine's programs of a prescribed rollout (perfect
+    controller) of models shaped like ``robot`` on ``grid``, from shapes alone (the robot's mode
+    counts and the grid): a caller that builds its tables first (``sweep.run_sweep``) has the
+    rollout compiled meanwhile, on the other core, and ``run`` then waits for these programs instead
+    of compiling its own. Compiling them twice starts one compilation."""
+    f64 = lambda shape: jax.ShapeDtypeStruct(shape, jnp.float64)
+    nodes = sum(SEGMENT_NODES)
+    tables = Tables(values=jax.tree_util.tree_map(lambda a: f64((nodes,) + a.shape), coeff_shapes(robot)),
+                    breaks=f64((len(SEGMENT_NODES) + 1,)))
+    n, nc = grid.steps, grid.coarse
+    samples = MotionSamples(start=(f64((n,)),) * 3, end=(f64((n,)),) * 3, mid=(f64((nc,)),) * 3)
+    model = RolloutModel(robot=robot, tf=f64(()), dwell=f64(()), grid=grid, second_order=second_order)
+    key = ("engine", grid, second_order, jax.tree_util.tree_structure(robot),
+           tuple(jax.typeof(a) for a in jax.tree_util.tree_leaves(robot)))
+    compiled.submit_chain(key, _ahead_chain, model, RolloutState(tables=tables, samples=samples),
+                          programs(second_order))
+
+
 def run(tables: Tables, samples: MotionSamples, tf, dwell, robot: Robot, grid: Grid,
         second_order: bool = True, servo: ServoJob | None = None) -> Series:
     """One rollout (motion over [0, tf] [s], dwell [s]) of the model ``robot`` whose path tables are
@@ -125,7 +169,7 @@ def run(tables: Tables, samples: MotionSamples, tf, dwell, robot: Robot, grid: G
     if servo is not None:
         state = state._replace(servo_tables=servo.servo_tables, schedule=servo.schedule, feedforward=servo.feedforward)
     for stage in rl.remaining(state, programs(second_order, servo is not None)):
-        program = _program if stage.over is None else _by_rows
+        program = _call if stage.over is None else _by_rows
         state = rl.merge(state, program(model, rl.restrict(state, stage.reads), stage=stage), stage.writes)
     return state.series
 

@@ -22,7 +22,8 @@ from jaxflex.accuracy import (DWELL_ATOL_MM, DWELL_RTOL, Accuracy, coarser_grid,
 from jaxflex.blends import BLENDS
 from jaxflex.expm import squarings_for
 from jaxflex.linearized import Tables
-from jaxflex.tables import coeffs_stacked, robot_table_poses
+from jaxflex.tables import coeffs_stacked, robot_table_poses, servo_path_tables
+from jaxflex.tables import compile_ahead as coeffs_ahead
 from jaxflex.metrics import METRICS
 from jaxflex.path import check_path_args, make_path
 from jaxflex.profiles import PROFILES, make_profile
@@ -32,7 +33,6 @@ from jaxflex.engine import sample_motion
 from jaxflex.servo import Servo, check_stable, with_rotor
 from jaxflex.servo_simulate import servo_grid
 from jaxflex.simulate import Grid, check_grid
-from jaxflex.tables import servo_path_tables
 
 
 class StepWarning(UserWarning):
@@ -287,10 +287,13 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES,
     blend family), the linearization coefficients (``tables.coeffs_many``) and the rollouts, one
     trajectory at a time through the evaluation engine (``jaxflex.engine``, from a thread per core:
     ``jaxflex.runtime.threads``, the same results as one after another), then the metrics.
-    Timing: ``tables_s`` is the wall time of the table build (compilation included; the
-    persistent compilation cache makes it short after the first run on a machine); ``compile_s``
-    the first sweep (every rollout through the engine's one program, and the metrics) minus one
-    run; ``run_s`` the median of ``config.repeats`` sweeps after compilation. With
+    The programs compile in the background from the start (the coefficient program while the table
+    poses are computed, the rollout's programs, and those of the error estimate's grid, while the
+    tables are built: ``tables.compile_ahead``, ``engine.compile_ahead``), so the two cores share
+    the compilation. Timing: ``tables_s`` is the wall time of the table build (compilation
+    included, the rollout's beside it; the persistent compilation cache makes it short after the
+    first run on a machine); ``compile_s`` the first sweep (every rollout through the engine's
+    programs, and the metrics) minus one run: what remains of the rollout's compilation; ``run_s`` the median of ``config.repeats`` sweeps after compilation. With
     ``config.timed=False`` the timed reruns are skipped when only the results are wanted (a shorter
     run): ``compile_s`` is then the first sweep's wall time (compilation and one run) and
     ``run_s`` is nan. The linearized model alone (``second_order=False``) still takes two passes,
@@ -331,6 +334,13 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES,
                     check_stable(r, c.servo, path, case.tf + dwell)
             servo_tables = [[servo_path_tables(r, path) for r in case_robots] for path in paths]
         servo_inputs = (c.servo, servo_tables)
+    # the coefficient program compiles while the table poses are computed, and the rollout's programs
+    # (and those of the error estimate's grid) while the tables are built
+    coeffs_ahead(robot)
+    if c.servo is None:
+        ahead = [grid] + [_coarser(robot, cases, grid, dwell)[0]] * (c.estimate and grid.coarse >= 16)
+        for g in ahead:
+            engine.compile_ahead(robot.replace(payload=cases[0].payload), g, c.second_order)
     payloads = jnp.asarray([case.payload for case in cases])
     d_, e_, n_ = (jnp.asarray(v, dtype=float) for v in (c.d, c.e, c.n))
     runs_total = len(blends) * len(profiles) * len(cases)
@@ -413,6 +423,13 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES,
                        compile_s, run_s, tables_s, accuracy)
 
 
+def _coarser(robot, cases, grid, dwell):
+    """The grid the error estimate compares ``grid`` with and its step ratio
+    (``accuracy.coarser_grid``), or None."""
+    tf_max = max(case.tf for case in cases)
+    return coarser_grid(grid, step_squarings(robot, 2 * grid_step(grid, tf_max, dwell)))
+
+
 def _estimated(c, robot, cases, grid, mets, series, compile_s, run_s, sweep, timed_sweeps, refine):
     """The error estimate of a sweep's metrics (``jaxflex.accuracy.estimated``): the same sweep on the
     coarser grid and, where the dwell residual misses its tolerance and ``refine`` allows, timed
@@ -420,7 +437,6 @@ def _estimated(c, robot, cases, grid, mets, series, compile_s, run_s, sweep, tim
     grid with every step halved, whose results are taken where the first grid's miss the tolerance.
     Returns the accuracy and the final grid's results."""
     t_start = time.perf_counter()
-    tf_max = max(case.tf for case in cases)
     if c.servo is not None:
         # the fine and dwell steps stay within the sample period: compared with every step halved
         outs = {}
@@ -440,7 +456,7 @@ def _estimated(c, robot, cases, grid, mets, series, compile_s, run_s, sweep, tim
             out = timed_sweeps(acc.grid, bar) if c.timed else outs[acc.grid] + (compile_s, float("nan"))
             grid, (mets, series, compile_s, run_s) = acc.grid, out
         return (acc._replace(seconds=time.perf_counter() - t_start), grid, mets, series, compile_s, run_s)
-    coarser = coarser_grid(grid, step_squarings(robot, 2 * grid_step(grid, tf_max, c.dwell)))
+    coarser = _coarser(robot, cases, grid, c.dwell)
     if coarser is None:
         raise ValueError(f"the grid {tuple(grid)[:3]} has no coarser grid to estimate its error with; "
                          "use a finer grid or SweepConfig(estimate=False)")

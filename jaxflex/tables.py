@@ -22,6 +22,7 @@ from jaxflex import trees
 from jaxflex.linearized import SEGMENT_NODES, Coeffs, Tables, coeffs_at, table_poses
 from jaxflex.path import Cycle, Path
 from jaxflex.robot import Robot, check_reachable, igm
+from jaxflex.runtime import compiled
 from jaxflex.runtime.memo import ContentMemo
 from jaxflex.runtime.options import BUILD
 from jaxflex.runtime.threads import host_map
@@ -54,9 +55,18 @@ def _coeffs(robots: list, poses: list) -> list:
         qs = [np.concatenate([q, np.repeat(q[:1], pad, axis=0)]) for q in qs]    # valid filler poses
         r = jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype=float), r)
         jobs += [(r, *(q[i:i + COEFF_CHUNK] for q in qs)) for i in range(0, n + pad, COEFF_CHUNK)]
-    parts = host_map(lambda job: _coeffs_chunk(*job), jobs)
+    parts = host_map(lambda job: compiled.call(_coeffs_chunk, job), jobs)
     per = (n + pad) // COEFF_CHUNK
     return [trees.concatenate(parts[k * per:(k + 1) * per], length=n) for k in range(len(robots))]
+
+
+def compile_ahead(robot: Robot) -> None:
+    """Start compiling the shared coefficient program for robots shaped like ``robot`` (its mode
+    counts) in the background (``runtime.compiled.compile_ahead``), so that a caller compiles it
+    while it computes the table poses; the table builds then run that program."""
+    r = jax.tree_util.tree_map(lambda a: jax.ShapeDtypeStruct(np.shape(a), jnp.float64), robot)
+    poses = jax.ShapeDtypeStruct((COEFF_CHUNK, 2), jnp.float64)
+    compiled.compile_ahead(_coeffs_chunk, (r, poses, poses, poses))
 
 
 def coeffs_many(robot: Robot, qa, qa1, qa2, *, remember: bool = True) -> Coeffs:
