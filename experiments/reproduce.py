@@ -244,7 +244,11 @@ def _closed_loop(out: Path, key: dict, opt: dict, refine: bool = False) -> dict:
     bandwidth where none was refined at it), or with ``refine``, or for a case without a shipped
     design, the study's design refined in this run (``closed_loop.reproduce_case``:
     ``CLOSED_LOOP_STEPS`` steps at each bandwidth, about a quarter of an hour each on 2 cores). Each
-    case resumes from its JSON (only for the same designs); each case runs in a process of its own."""
+    case resumes from its JSON (only for the same designs); each case runs in a process of its own,
+    with the persistent compilation cache for the shipped designs (the programs the cases share, and
+    those earlier sections compiled, are loaded instead of compiled again; docs/performance.md),
+    without it for a refinement (its gradient's program is too large to serialize,
+    ``run_isolated_uncached``)."""
     from . import closed_loop as cl
 
     res = {"cases": []}
@@ -258,7 +262,7 @@ def _closed_loop(out: Path, key: dict, opt: dict, refine: bool = False) -> dict:
         if designs:
             shipped = {fc: cl.shipped_design(p) for fc, p in designs.items()}
             r = resumable(d / "closed_loop.json", {**key, "shipped": {f"{fc:g}": v for fc, v in shipped.items()}},
-                          lambda: run_isolated_uncached(cl.shipped_case, record=rec, out_dir=str(d),
+                          lambda: run_isolated(cl.shipped_case, record=rec, out_dir=str(d),
                                                         samples=CLOSED_LOOP_SAMPLES, designs=shipped),
                           f"closed loop {name} kg (shipped designs)")
         else:

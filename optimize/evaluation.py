@@ -14,6 +14,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from jaxflex.accuracy import coarser_grid
 from jaxflex.engine import LawEvaluator
 from jaxflex.model import richer
 from jaxflex.model_sets import ModelSet, model_set, models_of, place_first_mode_hz
@@ -21,7 +22,8 @@ from jaxflex.path import Cycle, make_path
 from jaxflex.problem import Problem
 from jaxflex.profiles import make_profile
 from jaxflex.progress import Progress
-from jaxflex.sweep import SweepConfig, default_grid
+from jaxflex.simulate import Grid
+from jaxflex.sweep import SweepConfig, default_grid, grid_step, step_squarings
 from jaxflex.uncertainty import ModelId
 
 from .baselines import shaper_profiles
@@ -163,6 +165,13 @@ def _paper_evaluations(cancelled, problem: Problem, config, path, candidates):
     return sets, grids, evaluators, evaluations
 
 
+def estimate_grid(robot, grid: Grid, tf: float, dwell: float):
+    """The coarser grid the error estimate compares ``grid`` with and its step ratio
+    (``accuracy.coarser_grid``, the exponential's squarings set by ``robot`` for the longer steps),
+    or None; motion time tf and dwell [s]."""
+    return coarser_grid(grid, step_squarings(robot, 2 * grid_step(grid, tf, dwell)))
+
+
 def nominal_accuracy(evaluators: dict, candidates: dict, evaluations: dict, robot, *, progress: bool = False):
     """The discretization error of every candidate's metrics on the nominal models
     (docs/conventions.md#accuracy): the same candidates along the same paths on the coarser grid
@@ -174,15 +183,14 @@ def nominal_accuracy(evaluators: dict, candidates: dict, evaluations: dict, robo
     tolerance (a comparison outside the asymptotic range can overestimate the error), its path's
     candidates are compared with every step halved instead (``accuracy.estimated_by_halving``:
     2 |m - m_finer|, 1.5 times the error of a second-order method), the results staying the grid's."""
-    from jaxflex.accuracy import coarser_grid, estimate, estimated_by_halving
+    from jaxflex.accuracy import estimate, estimated_by_halving
     from jaxflex.simulate import MotionSamples
-    from jaxflex.sweep import grid_step, step_squarings
 
     from .baselines import ruckig_samples
 
     ev0 = next(iter(evaluators.values()))
     grid, tf, dwell = ev0.grid, float(ev0.tf), float(ev0.dwell)
-    coarser = coarser_grid(grid, step_squarings(robot, 2 * grid_step(grid, tf, dwell)))
+    coarser = estimate_grid(robot, grid, tf, dwell)
     if coarser is None:
         raise ValueError(f"the grid {tuple(grid)[:3]} has no coarser grid to estimate its error with")
     coarse, ratio = coarser

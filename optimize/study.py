@@ -37,7 +37,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from jaxflex import checks
+from jaxflex import checks, engine
 from jaxflex.designs import Design, design_path
 from jaxflex.engine import LawEvaluator
 from jaxflex.model_sets import ModelSet
@@ -52,7 +52,7 @@ from jaxflex.workspace import workspace_shapes
 
 from .baselines import ruckig_samples
 from .config import StudyConfig
-from .evaluation import Candidate, PaperSweep, baselines, best_combination, paper_sweep
+from .evaluation import Candidate, PaperSweep, baselines, best_combination, estimate_grid, paper_sweep
 from .gradient import resolved
 from .loop import OptResult
 from .objective import decode, encode
@@ -171,6 +171,10 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
     # and the scales, poly7-Lamé on every one the torque bounds (``training_references``)
     models = training_models(robot, payloads, train, box=c.box, points=c.box_points, cycle=cycle)
     weights = training_weights(train, len(payloads))
+    nominal = nominal_indices(models, payloads)
+    # the rollout's programs, which the paper sweep runs first after the workspace tables, compile in
+    # the background from the start (before the design gradient's)
+    engine.compile_ahead(models.singles()[nominal[0]], grid)
     workspaces = None
     train_config = c.train.with_optimizer(label=f"{'design' if free_path else 'law'} tf={tf:g}")
     gradient = resolved(Staged(), steps)        # the design gradient: compiled ahead, then trained with
@@ -183,7 +187,6 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
                               workspace_shapes(models.robots, cycle, models=len(models.ids)))
             gradient.compile_ahead(design_objective(shapes, train_config), encode(cycle, x0))
         workspaces = training_workspaces(models, cycle, progress, c.train.optimizer.memo)
-    nominal = nominal_indices(models, payloads)
     sweep = paper_sweep(subset(models, nominal), cycle, tf, SweepConfig(dwell=dwell, grid=grid, progress=progress))
     paper = sweep.metrics                                                       # (B, P, C)
     i, j = best_combination(paper["dwell_residual_mm"])
@@ -206,6 +209,10 @@ def optimize_design(problem: Problem, config: StudyConfig = StudyConfig()) -> De
         except ImportError as err:
             if progress:
                 print(f"  (Ruckig baseline skipped: {err})", flush=True)
+    # the error estimate's grid (``evaluation.nominal_accuracy``) compiles beside the optimizer
+    coarser = estimate_grid(robot, grid, tf, dwell)
+    if coarser is not None:
+        engine.compile_ahead(models.singles()[nominal[0]], coarser[0])
     beside = Beside(baselines, problem, c, paths["paper"], (blend, law), ruckig_candidate)
     setup_s = time.time() - started
     with beside:
