@@ -293,7 +293,8 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES,
     the compilation. Timing: ``tables_s`` is the wall time of the table build (compilation
     included, the rollout's beside it; the persistent compilation cache makes it short after the
     first run on a machine); ``compile_s`` the first sweep (every rollout through the engine's
-    programs, and the metrics) minus one run: what remains of the rollout's compilation; ``run_s`` the median of ``config.repeats`` sweeps after compilation. With
+    programs, and the metrics) minus one run: what remains of the rollout's compilation; ``run_s``
+    the median of ``config.repeats`` sweeps after compilation. With
     ``config.timed=False`` the timed reruns are skipped when only the results are wanted (a shorter
     run): ``compile_s`` is then the first sweep's wall time (compilation and one run) and
     ``run_s`` is nan. The linearized model alone (``second_order=False``) still takes two passes,
@@ -338,8 +339,8 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES,
     # (and those of the error estimate's grid) while the tables are built
     coeffs_ahead(robot)
     if c.servo is None:
-        ahead = [grid] + [_coarser(robot, cases, grid, dwell)[0]] * (c.estimate and grid.coarse >= 16)
-        for g in ahead:
+        coarser = estimate_grid(robot, grid, max(case.tf for case in cases), dwell) if c.estimate else None
+        for g in [grid] + ([coarser[0]] if coarser is not None else []):
             engine.compile_ahead(robot.replace(payload=cases[0].payload), g, c.second_order)
     payloads = jnp.asarray([case.payload for case in cases])
     d_, e_, n_ = (jnp.asarray(v, dtype=float) for v in (c.d, c.e, c.n))
@@ -423,11 +424,11 @@ def run_sweep(robot: Robot, cycle, cases: Sequence[Case] = PAPER_CASES,
                        compile_s, run_s, tables_s, accuracy)
 
 
-def _coarser(robot, cases, grid, dwell):
-    """The grid the error estimate compares ``grid`` with and its step ratio
-    (``accuracy.coarser_grid``), or None."""
-    tf_max = max(case.tf for case in cases)
-    return coarser_grid(grid, step_squarings(robot, 2 * grid_step(grid, tf_max, dwell)))
+def estimate_grid(robot: Robot, grid: Grid, tf: float, dwell: float):
+    """The coarser grid the error estimate compares ``grid`` with, and its step ratio
+    (``accuracy.coarser_grid``, the exponential's squarings set by ``robot`` for the longer steps),
+    or None; tf the (longest) motion time and dwell the dwell [s]."""
+    return coarser_grid(grid, step_squarings(robot, 2 * grid_step(grid, tf, dwell)))
 
 
 def _estimated(c, robot, cases, grid, mets, series, compile_s, run_s, sweep, timed_sweeps, refine):
@@ -456,7 +457,7 @@ def _estimated(c, robot, cases, grid, mets, series, compile_s, run_s, sweep, tim
             out = timed_sweeps(acc.grid, bar) if c.timed else outs[acc.grid] + (compile_s, float("nan"))
             grid, (mets, series, compile_s, run_s) = acc.grid, out
         return (acc._replace(seconds=time.perf_counter() - t_start), grid, mets, series, compile_s, run_s)
-    coarser = _coarser(robot, cases, grid, c.dwell)
+    coarser = estimate_grid(robot, grid, max(case.tf for case in cases), c.dwell)
     if coarser is None:
         raise ValueError(f"the grid {tuple(grid)[:3]} has no coarser grid to estimate its error with; "
                          "use a finer grid or SweepConfig(estimate=False)")

@@ -14,7 +14,6 @@ from typing import NamedTuple
 
 import numpy as np
 
-from jaxflex.accuracy import coarser_grid
 from jaxflex.engine import LawEvaluator
 from jaxflex.model import richer
 from jaxflex.model_sets import ModelSet, model_set, models_of, place_first_mode_hz
@@ -22,8 +21,7 @@ from jaxflex.path import Cycle, make_path
 from jaxflex.problem import Problem
 from jaxflex.profiles import make_profile
 from jaxflex.progress import Progress
-from jaxflex.simulate import Grid
-from jaxflex.sweep import SweepConfig, default_grid, grid_step, step_squarings
+from jaxflex.sweep import SweepConfig, default_grid, estimate_grid
 from jaxflex.uncertainty import ModelId
 
 from .baselines import shaper_profiles
@@ -163,13 +161,6 @@ def _paper_evaluations(cancelled, problem: Problem, config, path, candidates):
         evaluations[k] = dict(zip(candidates, ev.metrics_many([cand.law for cand in candidates.values()])))
         evaluators[k] = {"paper": ev} if keep else {}
     return sets, grids, evaluators, evaluations
-
-
-def estimate_grid(robot, grid: Grid, tf: float, dwell: float):
-    """The coarser grid the error estimate compares ``grid`` with and its step ratio
-    (``accuracy.coarser_grid``, the exponential's squarings set by ``robot`` for the longer steps),
-    or None; motion time tf and dwell [s]."""
-    return coarser_grid(grid, step_squarings(robot, 2 * grid_step(grid, tf, dwell)))
 
 
 def nominal_accuracy(evaluators: dict, candidates: dict, evaluations: dict, robot, *, progress: bool = False):

@@ -47,12 +47,12 @@ from jaxflex.progress import Progress
 from jaxflex.robot import check_cycle_reachable, check_motion_loads
 from jaxflex.runtime.threads import Beside
 from jaxflex.simulate import Grid
-from jaxflex.sweep import SweepConfig
+from jaxflex.sweep import SweepConfig, estimate_grid
 from jaxflex.workspace import workspace_shapes
 
 from .baselines import ruckig_samples
 from .config import StudyConfig
-from .evaluation import Candidate, PaperSweep, baselines, best_combination, estimate_grid, paper_sweep
+from .evaluation import Candidate, PaperSweep, baselines, best_combination, paper_sweep
 from .gradient import resolved
 from .loop import OptResult
 from .objective import decode, encode
