@@ -97,7 +97,7 @@ def programs(second_order: bool, servo: bool = False) -> tuple[rl.Stage, ...]:
 
 def cache_size() -> int:
     """Executables compiled by the engine's rollout programs in this process (every shape and grid)."""
-    return _program._cache_size()
+    return _program._cache_size() + compiled.registered(_program)
 
 
 class ServoJob(NamedTuple):
@@ -115,8 +115,9 @@ class ServoJob(NamedTuple):
 
 def _call(model: RolloutModel, inputs: RolloutState, stage: rl.Stage) -> RolloutState:
     """One program of the engine on its inputs: the one ``compile_ahead`` compiled for these shapes,
-    if any, else the jitted program (``runtime.compiled.call``)."""
-    return compiled.call(_program, (model, inputs), {"stage": stage})
+    else compiled here and registered with them (``runtime.compiled.call``), so that the engine's
+    programs are compiled once whichever comes first."""
+    return compiled.call(_program, (model, inputs), {"stage": stage}, register=True)
 
 
 def _ahead_chain(model: RolloutModel, state: RolloutState, stages) -> None:

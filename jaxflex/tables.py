@@ -55,7 +55,7 @@ def _coeffs(robots: list, poses: list) -> list:
         qs = [np.concatenate([q, np.repeat(q[:1], pad, axis=0)]) for q in qs]    # valid filler poses
         r = jax.tree_util.tree_map(lambda a: jnp.asarray(a, dtype=float), r)
         jobs += [(r, *(q[i:i + COEFF_CHUNK] for q in qs)) for i in range(0, n + pad, COEFF_CHUNK)]
-    parts = host_map(lambda job: compiled.call(_coeffs_chunk, job), jobs)
+    parts = host_map(lambda job: compiled.call(_coeffs_chunk, job, register=True), jobs)
     per = (n + pad) // COEFF_CHUNK
     return [trees.concatenate(parts[k * per:(k + 1) * per], length=n) for k in range(len(robots))]
 

@@ -113,6 +113,29 @@ def test_compile_ahead_gives_the_jitted_result_and_release_forgets_it():
     assert not compiled._AHEAD
 
 
+def test_a_program_call_registered_is_the_one_compile_ahead_finds():
+    """``call(..., register=True)`` compiles the program itself when nothing was compiled ahead and
+    registers it: a later ``compile_ahead`` for those shapes finds it instead of compiling it again
+    (one program whichever comes first), a failing compilation leaves nothing registered, and
+    ``registered`` counts the function's programs."""
+    from jaxflex.runtime import compiled
+
+    release_compiled()
+    f = jax.jit(lambda x, scale: scale * jnp.cos(x), static_argnames="scale")
+    x = jnp.linspace(0.0, 1.0, 5)
+    out = compiled.call(f, (x,), {"scale": 2.0}, register=True)
+    assert compiled.registered(f) == 1 and f._cache_size() == 0              # compiled once, not by the jit
+    assert jnp.array_equal(out, f(x, scale=2.0))
+    fut = compiled.compile_ahead(f, (jax.ShapeDtypeStruct((5,), x.dtype),), {"scale": 2.0})
+    assert fut.done() and compiled.registered(f) == 1                        # found, not compiled again
+    assert jnp.array_equal(compiled.call(f, (x,), {"scale": 2.0}, register=True), out)
+    with pytest.raises(ValueError):                                            # x given as the static scale
+        compiled.call(f, (x, x), {}, register=True)
+    assert compiled.registered(f) == 1
+    release_compiled()
+    assert compiled.registered(f) == 0
+
+
 def test_lower_ahead_gives_the_output_shapes_at_once_and_the_jitted_program():
     """``lower_ahead`` returns the program's output shapes before it is compiled (what a chain of
     programs lowers the next one from) and registers the compilation as ``compile_ahead`` does:

@@ -185,16 +185,38 @@ def lower_ahead(fn, args: tuple, static: dict | None = None) -> tuple[object, Fu
         return lowered.out_info, _AHEAD[key]
 
 
-def call(fn, args: tuple, static: dict | None = None):
+def call(fn, args: tuple, static: dict | None = None, register: bool = False):
     """``fn(*args, **static)``, through the program ``compile_ahead`` compiled for these shapes if
-    there is one (waiting for it to finish), else through ``fn`` itself."""
+    there is one (waiting for it to finish), else through ``fn`` itself. With ``register`` such a
+    program is compiled here instead, and registered as ``compile_ahead`` registers its own: a
+    function whose every call passes ``register`` has one set of programs, and a later
+    ``compile_ahead`` for shapes it has run finds the program rather than compiling it again."""
     static = dict(static or {})
-    if _AHEAD:
-        with _AHEAD_LOCK:
-            fut = _AHEAD.get(_signature(fn, args, static))
-        if fut is not None:
-            return fut.result()(*args)
-    return fn(*args, **static)
+    if not (_AHEAD or register):
+        return fn(*args, **static)
+    key = _signature(fn, args, static)
+    mine = None
+    with _AHEAD_LOCK:
+        fut = _AHEAD.get(key)
+        if fut is None and register:
+            fut = mine = _AHEAD[key] = Future()
+    if fut is None:
+        return fn(*args, **static)
+    if mine is not None:
+        try:
+            mine.set_result(fn.lower(*args, **static).compile())
+        except BaseException as err:
+            with _AHEAD_LOCK:
+                _AHEAD.pop(key, None)
+            mine.set_exception(err)
+            raise
+    return fut.result()(*args)
+
+
+def registered(fn) -> int:
+    """The programs of the jitted ``fn`` compiled ahead or registered by ``call`` (every shape)."""
+    with _AHEAD_LOCK:
+        return sum(1 for key in _AHEAD if key[0] is fn)
 
 
 def _call_configured(config: dict, trim: bool, fn, args, kwargs):
