@@ -54,10 +54,10 @@ _program = jax.jit(_stage, static_argnames=("stage",), compiler_options=HOT_LOOP
 
 # Rows per call of a stage that maps a field row by row (``rollout.Stage.over``: the second-order
 # remainder at the first pass's sites). Its program then does not depend on the grid: the sweep's
-# grid, its error estimate's coarser grid and a refined grid share one compilation. Each call costs
-# about a quarter of a millisecond whatever its rows (the program's many small kernels), so the
-# pieces are large: the default grid's 392 sites in one call, a coarser grid's padded to them, a
-# finer grid's in two or more (docs/performance.md).
+# grid, its error estimate's coarser grid and a refined grid share one compilation. Each call has a
+# fixed cost whatever its rows (the program's many small kernels), so the pieces are large: the
+# default grid's 392 sites in one call, a coarser grid's padded to them, a finer grid's in two or
+# more (the measurements are in docs/performance.md).
 ROWS = 392
 
 _CANONICAL_GRID = Grid()
