@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+from concurrent.futures import Future
 from typing import NamedTuple, Sequence
 
 import jax
@@ -137,12 +138,13 @@ def _ahead_chain(model: RolloutModel, state: RolloutState, stages) -> None:
         state = rl.merge(state, out, stage.writes)
 
 
-def compile_ahead(robot: Robot, grid: Grid, second_order: bool = True) -> None:
+def compile_ahead(robot: Robot, grid: Grid, second_order: bool = True) -> Future:
     """Start compiling, in the background, the engine's programs of a prescribed rollout (perfect
     controller) of models shaped like ``robot`` on ``grid``, from shapes alone (the robot's mode
     counts and the grid): a caller that builds its tables first (``sweep.run_sweep``) has the
     rollout compiled meanwhile, on the other core, and ``run`` then waits for these programs instead
-    of compiling its own. Compiling them twice starts one compilation."""
+    of compiling its own. Compiling them twice starts one compilation. Returns the Future of the
+    lowering chain (done once every program is lowered; their compilations may go on)."""
     f64 = lambda shape: jax.ShapeDtypeStruct(shape, jnp.float64)
     nodes = sum(SEGMENT_NODES)
     tables = Tables(values=jax.tree_util.tree_map(lambda a: f64((nodes,) + a.shape), coeff_shapes(robot)),
@@ -152,8 +154,8 @@ def compile_ahead(robot: Robot, grid: Grid, second_order: bool = True) -> None:
     model = RolloutModel(robot=robot, tf=f64(()), dwell=f64(()), grid=grid, second_order=second_order)
     key = ("engine", grid, second_order, jax.tree_util.tree_structure(robot),
            tuple(jax.typeof(a) for a in jax.tree_util.tree_leaves(robot)))
-    compiled.submit_chain(key, _ahead_chain, model, RolloutState(tables=tables, samples=samples),
-                          programs(second_order))
+    return compiled.submit_chain(key, _ahead_chain, model, RolloutState(tables=tables, samples=samples),
+                                 programs(second_order))
 
 
 def run(tables: Tables, samples: MotionSamples, tf, dwell, robot: Robot, grid: Grid,

@@ -90,6 +90,20 @@ def test_the_engine_runs_the_remainder_in_pieces_that_every_grid_shares(small, m
     np.testing.assert_allclose(pieces, whole, rtol=0, atol=1e-12 * np.max(np.abs(whole)))
 
 
+def test_the_engine_compiles_a_grid_ahead_from_shapes_alone(small):
+    """``engine.compile_ahead`` builds the programs of a grid from the robot and the grid alone (the
+    tables' and samples' shapes made by hand): a rollout on that grid then compiles nothing of its
+    own (a shape made wrongly would leave the rollout to compile its own programs)."""
+    robot, cycle, tables, _ = small
+    grid = GRID._replace(dwell_steps=2 * GRID.dwell_steps)
+    samples = sample_motion(make_path(cycle, "lame", 0.025).length, make_profile("poly7"), TF, grid)
+    engine.compile_ahead(robot, grid).result()
+    before = engine.cache_size()
+    series = engine.run(tables, samples, TF, DWELL, robot, grid)
+    assert engine.cache_size() == before, "a program of the rollout was not among those compiled ahead"
+    assert np.all(np.isfinite(_dwell(series))) and np.max(np.abs(_dwell(series))) > 0
+
+
 def test_a_stage_added_to_the_list_reaches_the_staged_gradient_and_its_compile_chain(small, monkeypatch):
     """With the extra stage (which the previous test shows changes the physics), the staged forward
     programs give the one-traced-function objective's value, the staged backward pass (whose cotangents now flow through the extra stage, which reads
