@@ -263,7 +263,7 @@ def _closed_loop(out: Path, key: dict, opt: dict, refine: bool = False) -> dict:
             shipped = {fc: cl.shipped_design(p) for fc, p in designs.items()}
             r = resumable(d / "closed_loop.json", {**key, "shipped": {f"{fc:g}": v for fc, v in shipped.items()}},
                           lambda: run_isolated(cl.shipped_case, record=rec, out_dir=str(d),
-                                                        samples=CLOSED_LOOP_SAMPLES, designs=shipped),
+                                               samples=CLOSED_LOOP_SAMPLES, designs=shipped),
                           f"closed loop {name} kg (shipped designs)")
         else:
             if not refine:
